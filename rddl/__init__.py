@@ -15,9 +15,21 @@ input raises an `RDDLError` whose diagnostics name file, line and column.
 from __future__ import annotations
 
 from .errors import Diagnostic, RDDLError, RDDLSemanticError, RDDLSyntaxError
+from .loader import CheckResult, check_files, check_pair, load, load_model, load_pair, rddl_files
+from .model import Model, PVariable, TypeInfo
 from .parser import parse, parse_expr, parse_file
 
 __all__ = [
+    "CheckResult",
+    "Model",
+    "PVariable",
+    "TypeInfo",
+    "check_files",
+    "check_pair",
+    "load_pair",
+    "load",
+    "load_model",
+    "rddl_files",
     "Diagnostic",
     "RDDLError",
     "RDDLSemanticError",
