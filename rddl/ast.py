@@ -312,6 +312,7 @@ class ObjectsDef:
 
     type: str
     names: tuple[str, ...]
+    name_locs: tuple[Loc, ...] = field(default=(), compare=False, repr=False)
     loc: Loc = _loc()
 
 

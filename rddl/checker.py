@@ -97,6 +97,7 @@ class DeferredObject:
     expected: str | None  # the type the context asks for, if known
     loc: A.Loc
     dollar: bool
+    numeric_use: str | None = None  # set when the context needs a number
 
 
 @dataclass
@@ -188,11 +189,11 @@ def check_domain(domain: A.Domain, texts: dict[str, str] | None = None) -> Domai
             rep.error(cpf.loc, "unknown-name", f"cpf for undeclared pvariable '{shown}'")
             continue
         if target.kind in (NON_FLUENT, ACTION):
-            rep.error(cpf.loc, "bad-cpf", f"'{cpf.name}' is a {target.kind} and cannot have a cpf")
+            rep.error(cpf.loc, "bad-cpf", f"'{cpf.name}' is {_a(target.kind)} and cannot have a cpf")
         elif target.kind == STATE and not cpf.primed:
             rep.error(cpf.loc, "bad-cpf", f"the cpf of state fluent '{cpf.name}' must be written {cpf.name}'")
         elif target.kind != STATE and cpf.primed:
-            rep.error(cpf.loc, "bad-cpf", f"only state fluents are primed; '{cpf.name}' is a {target.kind}")
+            rep.error(cpf.loc, "bad-cpf", f"only state fluents are primed; '{cpf.name}' is {_a(target.kind)}")
         if len(cpf.params) != target.arity:
             rep.error(cpf.loc, "arity", f"'{cpf.name}' takes {target.arity} parameter(s), its cpf has {len(cpf.params)}")
         if len(set(cpf.params)) != len(cpf.params):
@@ -206,9 +207,13 @@ def check_domain(domain: A.Domain, texts: dict[str, str] | None = None) -> Domai
     ex = _ExprChecker(check, types, enum_values, pvars, rep)
     for cpf in domain.cpfs:
         target = pvars.get(cpf.name)
-        env = {}
-        if target is not None and len(cpf.params) == target.arity:
-            env = dict(zip(cpf.params, target.params, strict=True))
+        env: dict[str, str | None] = {}
+        if target is not None:
+            # bind what the cpf declares (unknown types where the counts differ)
+            for i, var in enumerate(cpf.params):
+                env[var] = target.params[i] if i < target.arity else None
+        else:
+            env = {var: None for var in cpf.params}
         t = ex.infer(cpf.expr, env)
         if target is not None:
             ex.expect_assignable(t, target.range, cpf.expr, f"the cpf of '{cpf.name}'")
@@ -302,6 +307,10 @@ def _literal_value(
     return name
 
 
+def _a(word: str) -> str:
+    return ("an " if word[:1] in "aeiou" else "a ") + word
+
+
 def _show(v: object) -> str:
     if isinstance(v, bool):
         return "true" if v else "false"
@@ -378,7 +387,20 @@ class _ExprChecker:
         kind = "enum" if td is not None and td.kind == "enum" else "object"
         return f"{kind} type '{t}'"
 
+    def deferred_use(self, t: str | None, expr: A.Expr, use: str) -> bool:
+        """A bare name used where a number is needed: whether it is unknown
+        or an object is only known per instance, so decide there."""
+        if t != OBJECT_REF:
+            return False
+        for ref in reversed(self.check.deferred):
+            if ref.loc == expr.loc:
+                ref.numeric_use = use
+                return True
+        return False
+
     def expect_numeric(self, t: str | None, expr: A.Expr, what: str) -> None:
+        if self.deferred_use(t, expr, what):
+            return
         if t is not None and t not in NUMERIC:
             self.rep.error(expr.loc, "type", f"{what} must be a number or bool, but this is a value of {self.describe(t)}")
 
@@ -397,8 +419,8 @@ class _ExprChecker:
             self.rep.error(expr.loc, "type", f"{what} must give a value of {self.describe(rng)}, but gives a value of {self.describe(t)}")
 
     def expect_arg(self, arg: A.Expr, t: str | None, param: str, owner: str, index: int) -> None:
-        if t is None:
-            return
+        if t is None or param not in self.types:
+            return  # an unknown parameter type is reported where it is declared
         if isinstance(arg, A.EnumLit):
             td = self.types.get(param)
             if td is None or td.kind != "enum":
@@ -458,21 +480,24 @@ class _ExprChecker:
                 self.infer(a, env)
             return None
         if e.primed and p.kind != STATE:
-            self.rep.error(e.loc, "bad-cpf", f"only state fluents have a next-state value; '{e.name}' is a {p.kind}")
+            self.rep.error(e.loc, "bad-cpf", f"only state fluents have a next-state value; '{e.name}' is {_a(p.kind)}")
+        rng = p.range if p.range in NUMERIC or p.range in self.types else None
         if e.default:
-            return p.range
+            return rng
         if len(e.args) != p.arity:
             self.rep.error(e.loc, "arity", f"'{e.name}' takes {p.arity} argument(s), not {len(e.args)}")
             for a in e.args:
                 self.infer(a, env)
-            return p.range
+            return rng
         for i, (arg, param) in enumerate(zip(e.args, p.params, strict=True), start=1):
             t = self.infer(arg, env, param)
             self.expect_arg(arg, t, param, e.name, i)
-        return p.range
+        return rng
 
     def _Unary(self, e: A.Unary, env: dict[str, str], expected: str | None) -> str | None:
         t = self.infer(e.operand, env)
+        if self.deferred_use(t, e.operand, f"'{e.op}'"):
+            return None
         if t is not None and t not in NUMERIC:
             self.rep.error(e.loc, "type", f"'{e.op}' needs a number or bool, not a value of {self.describe(t)}")
             return None
@@ -498,6 +523,8 @@ class _ExprChecker:
                     self.rep.error(side.loc, "type", f"'{op}' compares numbers, not values of {self.describe(t)}")
             return "bool"
         for t, side in ((lt, e.left), (rt, e.right)):
+            if self.deferred_use(t, side, f"'{op}'"):
+                return None
             if t is not None and t not in NUMERIC:
                 self.rep.error(side.loc, "type", f"'{op}' needs numbers or bools, not a value of {self.describe(t)}")
                 return None
@@ -699,6 +726,7 @@ def _objects_of(
     defs: Iterable[A.ObjectsDef],
     types: dict[str, A.TypeDef],
     rep: _Reporter,
+    untyped: set[str],
 ) -> dict[str, list[str]]:
     out: dict[str, list[str]] = {}
     owner: dict[str, str] = {}
@@ -706,14 +734,20 @@ def _objects_of(
         td = types.get(od.type)
         if td is None:
             rep.error(od.loc, "unknown-type", f"objects for unknown type '{od.type}'")
+            untyped.update(od.names)
             continue
         if td.kind == "enum":
             rep.error(od.loc, "type", f"'{od.type}' is an enum type; its values are fixed in the domain")
             continue
         lst = out.setdefault(od.type, [])
-        for name in od.names:
+        for i, name in enumerate(od.names):
             if name in owner:
-                rep.error(od.loc, "duplicate-definition", f"object '{name}' is declared twice (as '{owner[name]}' and '{od.type}')")
+                loc = od.name_locs[i] if i < len(od.name_locs) else od.loc
+                if owner[name] == od.type:
+                    msg = f"object '{name}' is listed twice in type '{od.type}'"
+                else:
+                    msg = f"object '{name}' is declared twice (as '{owner[name]}' and '{od.type}')"
+                rep.error(loc, "duplicate-definition", msg)
                 continue
             owner[name] = od.type
             lst.append(name)
@@ -738,7 +772,8 @@ def build_model(
     if non_fluents is not None:
         object_defs += non_fluents.objects
     object_defs += instance.objects
-    objs = _objects_of(object_defs, types, rep)
+    untyped_objects: set[str] = set()
+    objs = _objects_of(object_defs, types, rep, untyped_objects)
 
     # Members of each type: own objects, then those of subtypes, in order.
     members: dict[str, list[str]] = {}
@@ -762,11 +797,15 @@ def build_model(
 
     # Deferred object references from the domain's expressions.
     for ref in dcheck.deferred:
+        if ref.name in untyped_objects:
+            continue  # declared under an unknown type, reported there
         if ref.name not in object_type:
             if ref.dollar:
                 rep.error(ref.loc, "unknown-object", f"unknown object '${ref.name}'")
             else:
                 rep.error(ref.loc, "unknown-name", f"'{ref.name}' is neither a pvariable nor an object")
+        elif ref.numeric_use is not None:
+            rep.error(ref.loc, "type", f"{ref.numeric_use} needs a number or bool, not the object '{ref.name}'")
         elif ref.expected is not None and ref.expected in types and not _is_subtype(object_type[ref.name], ref.expected, types):
             rep.error(ref.loc, "type", f"object '{ref.name}' is of type '{object_type[ref.name]}', not '{ref.expected}'")
 
@@ -783,7 +822,7 @@ def build_model(
                 rep.error(asg.loc, "unknown-name", f"{section} sets unknown pvariable '{asg.name}'")
                 continue
             if p.kind not in kinds:
-                rep.error(asg.loc, "bad-assignment", f"{section} can only set {' or '.join(kinds)}s; '{asg.name}' is a {p.kind}")
+                rep.error(asg.loc, "bad-assignment", f"{section} can only set {' or '.join(kinds)}s; '{asg.name}' is {_a(p.kind)}")
                 continue
             if len(asg.args) != p.arity:
                 rep.error(asg.loc, "arity", f"'{asg.name}' takes {p.arity} argument(s), not {len(asg.args)}")
@@ -802,6 +841,8 @@ def build_model(
                 if a.startswith("@"):
                     rep.error(asg.loc, "type", f"argument {i} of '{asg.name}' must be an object of type '{t}', not the enum value '{a}'")
                     ok = False
+                elif a in untyped_objects or t not in types:
+                    ok = False  # reported where the object or type is declared
                 elif a not in object_type:
                     rep.error(asg.loc, "unknown-object", f"argument {i} of '{asg.name}': unknown object '{a}'")
                     ok = False

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import logging
 import os
+import re
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -77,6 +78,7 @@ class _Index:
         self.domains: dict[str, list[tuple[A.Domain, str]]] = {}
         self.non_fluents: dict[str, list[tuple[A.NonFluents, str]]] = {}
         self.instances: list[tuple[A.Instance, str]] = []
+        self.unparsed: list[str] = []
 
     def add(self, parsed: A.RDDLFile) -> None:
         for d in parsed.domains:
@@ -85,6 +87,10 @@ class _Index:
             self.non_fluents.setdefault(n.name, []).append((n, parsed.path))
         for i in parsed.instances:
             self.instances.append((i, parsed.path))
+
+
+def _mentions_domain(text: str, name: str) -> bool:
+    return re.search(r"\bdomain\s+" + re.escape(name) + r"\s*\{", text) is not None
 
 
 def _pick(candidates: list[tuple[object, str]], near: str) -> tuple[list[tuple[object, str]], bool]:
@@ -165,7 +171,11 @@ def _check_instance(
             return CheckResult(inst.name, "instance", ifile, None, diags), None
         cands = index.domains.get(inst.domain, [])
         if not cands:
-            err("unknown-domain", f"instance '{inst.name}' names domain '{inst.domain}', which is in none of the files given")
+            unread = [f for f in index.unparsed if _mentions_domain(texts.get(f, ""), inst.domain)]
+            if unread:
+                err("unknown-domain", f"instance '{inst.name}' names domain '{inst.domain}', whose file {unread[0]} has syntax errors")
+            else:
+                err("unknown-domain", f"instance '{inst.name}' names domain '{inst.domain}', which is in none of the files given")
             return CheckResult(inst.name, "instance", ifile, None, diags), None
         chosen, clash = _pick(cands, ifile)  # type: ignore[arg-type]
         if clash:
@@ -193,6 +203,10 @@ def _check_instance(
                 assert isinstance(nf, A.NonFluents)
                 if forced is None and nf.domain is not None and nf.domain != inst.domain:
                     err("unknown-domain", f"non-fluents '{nf.name}' are for domain '{nf.domain}', but instance '{inst.name}' is for '{inst.domain}'", nf.loc)
+    if inst.non_fluents is not None and nf is None:
+        # Its objects and values are missing: checking the instance's own
+        # values now would only repeat that.
+        return CheckResult(inst.name, "instance", ifile, None, diags), id(domain)
     # Check the instance even when the domain has errors, so that all
     # problems are reported at once.
     model, idiags = build_model(dcheck, inst, nf, texts, dfile, ifile, nffile)
@@ -207,6 +221,7 @@ def _parse_into(files: list[Path], texts: dict[str, str], index: _Index, results
         try:
             index.add(parse(text, str(f)))
         except RDDLError as err:
+            index.unparsed.append(str(f))
             results.append(CheckResult(f.name, "file", str(f), None, err.diagnostics))
 
 

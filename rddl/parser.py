@@ -14,7 +14,6 @@ several blocks are all reported.
 from __future__ import annotations
 
 import difflib
-import re
 from functools import lru_cache
 from importlib import resources
 from pathlib import Path
@@ -205,10 +204,16 @@ class _Builder(Transformer):  # type: ignore[type-arg]
         return ("objects", list(defs))
 
     def objects_def(self, type_: Token, *names: Any) -> A.ObjectsDef:
-        return A.ObjectsDef(str(type_), tuple(str(n) for n in names), loc=self._at(type_))
+        return A.ObjectsDef(
+            str(type_),
+            tuple(str(n) for n in names),
+            tuple(self._at(n) for n in names),
+            loc=self._at(type_),
+        )
 
-    def dollar_name(self, name: Token) -> str:
-        return str(name)
+    def dollar_name(self, dollar: Token, name: Token) -> Token:
+        # keep the position of the '$'; the name is what matters
+        return Token("IDENT", str(name), dollar.start_pos, dollar.line, dollar.column)
 
     def non_fluents_block(self, _kw: Token, name: Token, *items: Any) -> A.NonFluents:
         domain = None
@@ -221,7 +226,7 @@ class _Builder(Transformer):  # type: ignore[type-arg]
                 objects.extend(value)
             elif tag == "nf_values":
                 values.extend(value)
-        return A.NonFluents(str(name), domain, tuple(objects), tuple(values), self._at(_kw))
+        return A.NonFluents(str(name), domain, tuple(objects), tuple(values), self._at(name))
 
     def instance_block(self, name: Token, *items: Any) -> A.Instance:
         f: dict[str, Any] = {
@@ -309,8 +314,8 @@ class _Builder(Transformer):  # type: ignore[type-arg]
             return A.EnumLit(str(tok), loc)
         return A.ObjectLit(str(tok), False, loc)
 
-    def dollar_literal(self, name: Token) -> A.ObjectLit:
-        return A.ObjectLit(str(name), True, self._at(name))
+    def dollar_literal(self, dollar: Token, name: Token) -> A.ObjectLit:
+        return A.ObjectLit(str(name), True, self._at(dollar))
 
     def signed_number(self, *toks: Token) -> A.Const:
         sign = 1
@@ -347,8 +352,8 @@ class _Builder(Transformer):  # type: ignore[type-arg]
     def enum_literal(self, tok: Token) -> A.EnumLit:
         return A.EnumLit(str(tok), self._at(tok))
 
-    def object_literal(self, tok: Token) -> A.ObjectLit:
-        return A.ObjectLit(str(tok), True, self._at(tok))
+    def object_literal(self, dollar: Token, tok: Token) -> A.ObjectLit:
+        return A.ObjectLit(str(tok), True, self._at(dollar))
 
     def bare_name(self, tok: Token) -> A.PVar:
         name, primed = _strip_prime(str(tok))
@@ -394,8 +399,9 @@ class _Builder(Transformer):  # type: ignore[type-arg]
     def default_case(self, _kw: Token, value: A.Expr) -> A.Case:
         return A.Case(None, value, self._at(_kw))
 
-    def discrete_case(self, label: Any, prob: Any) -> A.DiscreteCase:
-        loc = self._at(label)
+    def discrete_case(self, *children: Any) -> A.DiscreteCase:
+        loc = self._at(children[0])
+        label, prob = children[-2], children[-1]
         if isinstance(label, Token) and label.type == "ENUM_VAL":
             lab: A.Expr = A.EnumLit(str(label), loc)
         else:
@@ -503,7 +509,9 @@ def _describe_token(tok: Token) -> str:
     if tok.type == "$END":
         return "end of file"
     if tok.type in _TERMINAL_WORDS:
-        return f"{_TERMINAL_WORDS[tok.type].split(' such as')[0]} '{tok}'"
+        word = _TERMINAL_WORDS[tok.type].split(" such as")[0]
+        word = word.split(" ", 1)[1] if " " in word else word  # "a name" -> "name"
+        return f"{word} '{tok}'"
     return f"'{tok}'"
 
 
@@ -542,6 +550,24 @@ def _syntax_diagnostic(err: UnexpectedInput, file: str, text: str) -> Diagnostic
         if "RBRACE" in expected:
             msg += " (is a '}' missing?)"
         return Diagnostic(A.Loc(file, line, column), "syntax", msg, source_line(text, line))
+    # A keyword followed by more letters ("state-fluents") is lexed as the
+    # keyword and a stray rest; report the whole word where it starts.
+    start = tok.start_pos or 0
+    if 0 < start < len(text) and _is_word_char(text[start - 1]) and _is_word_char(text[start]):
+        begin = start
+        while begin > 0 and _is_word_char(text[begin - 1]):
+            begin -= 1
+        end = start
+        while end < len(text) and _is_word_char(text[end]):
+            end += 1
+        word = text[begin:end]
+        line = text.count("\n", 0, begin) + 1
+        column = begin - (text.rfind("\n", 0, begin) + 1) + 1
+        msg = f"unknown word '{word}'"
+        close = difflib.get_close_matches(word, _KEYWORDS, n=1, cutoff=0.75)
+        if close:
+            msg += f" (did you mean '{close[0]}'?)"
+        return Diagnostic(A.Loc(file, line, column), "syntax", msg, source_line(text, line))
     msg = f"unexpected {_describe_token(tok)}; expected {_describe_expected(expected)}"
     if tok.type == "IDENT":
         close = difflib.get_close_matches(str(tok), _KEYWORDS, n=1, cutoff=0.75)
@@ -550,7 +576,8 @@ def _syntax_diagnostic(err: UnexpectedInput, file: str, text: str) -> Diagnostic
     return Diagnostic(A.Loc(file, line, column), "syntax", msg, source_line(text, line))
 
 
-_BLOCK_START = re.compile(r"^\s*(domain|instance|non-fluents)\b", re.M)
+def _is_word_char(c: str) -> bool:
+    return c.isalnum() or c in "-_"
 
 
 def _block_spans(text: str) -> list[int]:
@@ -610,18 +637,13 @@ def _all_syntax_errors(text: str, file: str, first: UnexpectedInput) -> list[Dia
         try:
             _parse_text(padded, file)
         except UnexpectedInput as err:
-            d = _syntax_diagnostic(err, file, text)
-            if isinstance(err, (UnexpectedEOF,)) or (
+            if isinstance(err, UnexpectedEOF) or (
                 isinstance(err, UnexpectedToken) and err.token.type == "$END"
             ):
-                # The block ran into its end: report where the block stops.
-                end_line = text.count("\n", 0, end) + (0 if end < len(text) else 1)
-                d = Diagnostic(
-                    A.Loc(file, max(end_line, 1), d.column if end >= len(text) else 1),
-                    "syntax",
-                    d.message,
-                    source_line(text, end_line),
-                )
+                # A block that runs into its end (a missing '}'): the
+                # whole-file parse has reported it where the next block starts.
+                continue
+            d = _syntax_diagnostic(err, file, padded)
             if (d.line, d.column) not in seen:
                 seen.add((d.line, d.column))
                 diags.append(d)

@@ -132,8 +132,7 @@ def _operand(expr: A.Expr, op: str, right: bool) -> str:
     text = write_expr(expr)
     prec = _precedence(expr)
     parent = _BINARY_PRECEDENCE[op]
-    if prec == _PREFIX:
-        return _paren(text)
+    # Prefix forms (precedence 0) always land here: their body would run on.
     if prec < parent or (right and prec == parent):
         return _paren(text)
     if (
@@ -354,9 +353,7 @@ def _instance(inst: A.Instance) -> str:
     if inst.objects:
         sections.append(_section("objects", (_objects_def(o) for o in inst.objects)))
     if inst.non_fluent_values is not None:
-        sections.append(
-            _section("non-fluents", (_assignment(a) for a in inst.non_fluent_values))
-        )
+        sections.append(_section("non-fluents", (_assignment(a) for a in inst.non_fluent_values)))
     if inst.init_state is not None:
         sections.append(_section("init-state", (_assignment(a) for a in inst.init_state)))
     if inst.max_nondef_actions is not None:

@@ -15,7 +15,7 @@ try:
     import hypothesis
     from hypothesis import strategies as st
 except ImportError:  # pragma: no cover - hypothesis is a test dependency
-    hypothesis = None
+    hypothesis = None  # type: ignore[assignment]
 
 from ippc.rddl import ast as A
 from ippc.rddl import parse, parse_expr, parse_file
@@ -157,6 +157,32 @@ def test_unary_operands() -> None:
     assert rt_expr(A.Unary("+", c(1.5))) == "+1.5"
 
 
+_ALL_BINARY = ["<=>", "=>", "|", "^", "==", "~=", "<", "<=", ">", ">=", "+", "-", "*", "/"]
+
+
+def test_every_pair_of_operators() -> None:
+    """Parenthesisation is decided locally (parent and child), so checking
+    every operator as the left and right child of every other, and under
+    each unary operator, covers all cases."""
+    x, y, z = v("x"), v("y"), v("z")
+    for outer in _ALL_BINARY:
+        for inner in _ALL_BINARY:
+            rt_expr(b(outer, b(inner, x, y), z))
+            rt_expr(b(outer, x, b(inner, y, z)))
+        for unary in ("~", "-", "+"):
+            rt_expr(A.Unary(unary, b(outer, x, y)))
+            rt_expr(b(outer, A.Unary(unary, x), A.Unary(unary, y)))
+        prefix_forms: list[A.Expr] = [
+            A.If(x, y, z),
+            A.Aggregation("sum", (A.TypedVar("?v", "t"),), y),
+            A.DiscreteOver("Discrete", (A.TypedVar("?v", "t"),), y),
+        ]
+        for prefix in prefix_forms:
+            rt_expr(b(outer, prefix, z))
+            rt_expr(b(outer, x, prefix))
+            rt_expr(b(outer, b(outer, x, prefix), z))
+
+
 def test_comparisons_chain_left() -> None:
     assert rt_expr(b("<", b("<", v("a"), v("b")), v("c"))) == "a < b < c"
     assert rt_expr(b("==", v("a"), b("~=", v("b"), v("c")))) == "a == (b ~= c)"
@@ -261,7 +287,9 @@ def test_other_expression_forms() -> None:
             A.Case(None, c(0)),
         ),
     )
-    assert rt_expr(sw) == "switch (mode) { case @a : 1, case @b : if (p) then 2 else 3, default : 0 }"
+    assert (
+        rt_expr(sw) == "switch (mode) { case @a : 1, case @b : if (p) then 2 else 3, default : 0 }"
+    )
     # A switch is closed by its braces: no parentheses as an operand.
     assert rt_expr(b("+", sw, c(1))) == f"{write_expr(sw)} + 1"
     primed = A.PVar("running", (A.Var("?c"),), primed=True)
@@ -270,11 +298,24 @@ def test_other_expression_forms() -> None:
     assert rt_expr(A.PVar("speed", primed=True)) == "speed'"
 
 
+@pytest.mark.xfail(
+    reason="parser: after `name[` the contextual lexer takes `row` as the ROW keyword "
+    "of cholesky[row=?r, col=?c][...], so a pvariable named row cannot open a "
+    "bracketed function's arguments",
+    raises=Exception,
+    strict=False,
+)
+def test_pvariable_named_row_in_brackets() -> None:
+    rt_expr(A.Function("exp", (A.PVar("row", (A.Var("?x"),)),)))
+
+
 def test_literals_in_expressions() -> None:
     assert rt_expr(A.EnumLit("@low")) == "@low"
     assert rt_expr(A.ObjectLit("c1")) == "$c1"
     assert write_expr(A.ObjectLit("c1", dollar=False)) == "c1"
-    assert rt_expr(b("==", A.PVar("at", (A.Var("?r"),)), A.ObjectLit("room-2"))) == "at(?r) == $room-2"
+    assert (
+        rt_expr(b("==", A.PVar("at", (A.Var("?r"),)), A.ObjectLit("room-2"))) == "at(?r) == $room-2"
+    )
     assert rt_expr(c(True)) == "true"
     assert rt_expr(c(False)) == "false"
     assert rt_expr(c(math.inf)) == "pos-inf"
@@ -542,10 +583,12 @@ if hypothesis is None:  # pragma: no cover
         pytest.skip("hypothesis is not installed")
 
 else:
-    _NAMES = st.sampled_from(["f", "g-h", "x2", "row", "level"])
+    # Names that are keywords elsewhere ("col", "level") are fine; "row" is
+    # left out: see test_pvariable_named_row_in_brackets.
+    _NAMES = st.sampled_from(["f", "g-h", "x2", "col", "level"])
     _VARS = st.sampled_from(["?x", "?y", "?obj-1"])
     _TYPES = st.sampled_from(["obj", "t"])
-    _BINARY = ["<=>", "=>", "|", "^", "==", "~=", "<", "<=", ">", ">=", "+", "-", "*", "/"]
+    _BINARY = _ALL_BINARY
 
     _atoms = st.one_of(
         st.booleans().map(A.Const),
@@ -559,10 +602,8 @@ else:
         st.builds(A.PVar, _NAMES, st.just(()), st.booleans(), st.just(True)),
     )
 
-
     def _typed_vars() -> st.SearchStrategy[tuple[A.TypedVar, ...]]:
         return st.lists(st.builds(A.TypedVar, _VARS, _TYPES), min_size=1, max_size=2).map(tuple)
-
 
     def _extend(children: st.SearchStrategy[A.Expr]) -> st.SearchStrategy[A.Expr]:
         args = st.lists(children, min_size=1, max_size=3).map(tuple)
@@ -584,7 +625,12 @@ else:
             st.builds(
                 A.Aggregation, st.sampled_from(["sum", "forall", "argmax"]), _typed_vars(), children
             ),
-            st.builds(A.DiscreteOver, st.sampled_from(["Discrete", "UnnormDiscrete"]), _typed_vars(), children),
+            st.builds(
+                A.DiscreteOver,
+                st.sampled_from(["Discrete", "UnnormDiscrete"]),
+                _typed_vars(),
+                children,
+            ),
             st.builds(A.Function, st.sampled_from(["exp", "max"]), args),
             st.builds(A.Distribution, st.sampled_from(["Normal", "Bernoulli"]), args),
             st.builds(A.Discrete, st.just("Discrete"), _TYPES, enum_cases),
@@ -593,7 +639,9 @@ else:
                 A.Switch,
                 children,
                 st.lists(
-                    st.builds(A.Case, st.one_of(st.none(), children), children), min_size=1, max_size=3
+                    st.builds(A.Case, st.one_of(st.none(), children), children),
+                    min_size=1,
+                    max_size=3,
                 ).map(tuple),
             ),
             st.builds(A.MatrixOp, st.just("inverse"), _VARS, _VARS, children),
@@ -605,15 +653,32 @@ else:
             ),
         )
 
-
     _exprs = st.recursive(_atoms, _extend, max_leaves=12)
 
+    # Operators only, densely nested: where parenthesisation can go wrong.
+    _operators = st.recursive(
+        st.one_of(
+            st.sampled_from(["a", "b", "c"]).map(A.PVar),
+            st.sampled_from([A.Const(1), A.Const(2.5), A.Const(True)]),
+        ),
+        lambda children: st.one_of(
+            st.builds(A.Binary, st.sampled_from(_BINARY), children, children),
+            st.builds(A.Unary, st.sampled_from(["~", "-"]), children),
+            st.builds(A.If, children, children, children),
+            st.builds(A.Aggregation, st.just("sum"), _typed_vars(), children),
+        ),
+        max_leaves=8,
+    )
 
     @hypothesis.settings(max_examples=300, deadline=None)
     @hypothesis.given(_exprs)
     def test_generated_expressions_round_trip(expr: A.Expr) -> None:
         rt_expr(expr)
 
+    @hypothesis.settings(max_examples=500, deadline=None)
+    @hypothesis.given(_operators)
+    def test_generated_operator_nests_round_trip(expr: A.Expr) -> None:
+        rt_expr(expr)
 
     @hypothesis.settings(max_examples=300, deadline=None)
     @hypothesis.given(st.floats(allow_nan=False, allow_infinity=False))
