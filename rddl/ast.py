@@ -13,7 +13,6 @@ distinguished: they mean the same). A bare name inside an expression is a
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Union
 
 
 @dataclass(frozen=True, slots=True)
@@ -237,28 +236,32 @@ class VectorDistribution:
     loc: Loc = _loc()
 
 
-Expr = Union[
-    Const,
-    Var,
-    EnumLit,
-    ObjectLit,
-    PVar,
-    Unary,
-    Binary,
-    Aggregation,
-    Function,
-    MatrixOp,
-    If,
-    Switch,
-    Distribution,
-    Discrete,
-    DiscreteOver,
-    VectorDistribution,
-]
+Expr = (
+    Const
+    | Var
+    | EnumLit
+    | ObjectLit
+    | PVar
+    | Unary
+    | Binary
+    | Aggregation
+    | Function
+    | MatrixOp
+    | If
+    | Switch
+    | Distribution
+    | Discrete
+    | DiscreteOver
+    | VectorDistribution
+)
 
 # A constant in a default, non-fluents or init-state value: a Const, an
 # EnumLit, or an ObjectLit (a bare object name is an ObjectLit too).
-Literal = Union[Const, EnumLit, ObjectLit]
+Literal = (
+    Const
+    | EnumLit
+    | ObjectLit
+)
 
 
 # ---------------------------------------------------------------- domain

@@ -88,6 +88,9 @@ DISTRIBUTIONS: dict[str, tuple[int, str]] = {
 
 OBJECT_REF = "<object>"  # type of a bare name resolved to an object later
 
+# Variables in scope and their types (None: unknown after an error).
+Env = dict[str, str | None]
+
 
 @dataclass
 class DeferredObject:
@@ -157,12 +160,12 @@ def check_domain(domain: A.Domain, texts: dict[str, str] | None = None) -> Domai
         if pd.name in pvars:
             rep.error(pd.loc, "duplicate-definition", f"pvariable '{pd.name}' is defined twice (first at line {pvars[pd.name].loc.line})")
             continue
-        for t in pd.params:
-            if t not in types:
-                if t in PRIMITIVE_TYPES:
-                    rep.error(pd.loc, "type", f"parameter of '{pd.name}' has type '{t}'; parameters must be object or enum types")
+        for ptype in pd.params:
+            if ptype not in types:
+                if ptype in PRIMITIVE_TYPES:
+                    rep.error(pd.loc, "type", f"parameter of '{pd.name}' has type '{ptype}'; parameters must be object or enum types")
                 else:
-                    rep.error(pd.loc, "unknown-type", f"parameter of '{pd.name}' has unknown type '{t}'")
+                    rep.error(pd.loc, "unknown-type", f"parameter of '{pd.name}' has unknown type '{ptype}'")
         if pd.range not in PRIMITIVE_TYPES and pd.range not in types:
             rep.error(pd.loc, "unknown-type", f"'{pd.name}' has unknown range type '{pd.range}'")
         default = None
@@ -436,22 +439,22 @@ class _ExprChecker:
 
     # -------------------------------------------------------- inference
 
-    def infer(self, e: A.Expr, env: dict[str, str], expected: str | None = None) -> str | None:
+    def infer(self, e: A.Expr, env: Env, expected: str | None = None) -> str | None:
         method = getattr(self, "_" + type(e).__name__)
         return method(e, env, expected)  # type: ignore[no-any-return]
 
-    def _Const(self, e: A.Const, env: dict[str, str], expected: str | None) -> str | None:
+    def _Const(self, e: A.Const, env: Env, expected: str | None) -> str | None:
         if isinstance(e.value, bool):
             return "bool"
         return "int" if isinstance(e.value, int) else "real"
 
-    def _Var(self, e: A.Var, env: dict[str, str], expected: str | None) -> str | None:
+    def _Var(self, e: A.Var, env: Env, expected: str | None) -> str | None:
         if e.name not in env:
             self.rep.error(e.loc, "unknown-variable", f"variable '{e.name}' is not bound here")
             return None
         return env[e.name]
 
-    def _EnumLit(self, e: A.EnumLit, env: dict[str, str], expected: str | None) -> str | None:
+    def _EnumLit(self, e: A.EnumLit, env: Env, expected: str | None) -> str | None:
         owners = self.enum_values.get(e.name)
         if not owners:
             self.rep.error(e.loc, "unknown-name", f"unknown enum value '{e.name}'")
@@ -460,11 +463,11 @@ class _ExprChecker:
             return expected
         return owners[0]
 
-    def _ObjectLit(self, e: A.ObjectLit, env: dict[str, str], expected: str | None) -> str | None:
+    def _ObjectLit(self, e: A.ObjectLit, env: Env, expected: str | None) -> str | None:
         self.check.deferred.append(DeferredObject(e.name, expected, e.loc, e.dollar))
         return expected if expected in self.types else OBJECT_REF
 
-    def _PVar(self, e: A.PVar, env: dict[str, str], expected: str | None) -> str | None:
+    def _PVar(self, e: A.PVar, env: Env, expected: str | None) -> str | None:
         p = self.pvars.get(e.name)
         if p is None:
             if not e.args and not e.primed and not e.default:
@@ -494,7 +497,7 @@ class _ExprChecker:
             self.expect_arg(arg, t, param, e.name, i)
         return rng
 
-    def _Unary(self, e: A.Unary, env: dict[str, str], expected: str | None) -> str | None:
+    def _Unary(self, e: A.Unary, env: Env, expected: str | None) -> str | None:
         t = self.infer(e.operand, env)
         if self.deferred_use(t, e.operand, f"'{e.op}'"):
             return None
@@ -505,7 +508,7 @@ class _ExprChecker:
             return "bool"
         return "int" if t == "bool" else t
 
-    def _Binary(self, e: A.Binary, env: dict[str, str], expected: str | None) -> str | None:
+    def _Binary(self, e: A.Binary, env: Env, expected: str | None) -> str | None:
         op = e.op
         if op in ("==", "~="):
             lt = self.infer(e.left, env)
@@ -538,7 +541,7 @@ class _ExprChecker:
             return "real"
         return "int"
 
-    def infer_again(self, e: A.Expr, env: dict[str, str], expected: str) -> str | None:
+    def infer_again(self, e: A.Expr, env: Env, expected: str) -> str | None:
         # Re-resolve a bare object name now that the other side's type is
         # known (drop the deferred reference made without it).
         if isinstance(e, (A.PVar, A.ObjectLit)) and self.check.deferred and self.check.deferred[-1].loc == e.loc:
@@ -554,17 +557,17 @@ class _ExprChecker:
         if (lt in NUMERIC) != (rt in NUMERIC) or not self.compatible(lt, rt):
             self.rep.error(e.loc, "type", f"'{e.op}' compares a value of {self.describe(lt)} with a value of {self.describe(rt)}")
 
-    def _bind(self, params: tuple[A.TypedVar, ...], env: dict[str, str]) -> dict[str, str]:
-        inner = dict(env)
+    def _bind(self, params: tuple[A.TypedVar, ...], env: Env) -> Env:
+        inner: Env = dict(env)
         for tv in params:
             if tv.type not in self.types:
                 self.rep.error(tv.loc, "unknown-type", f"unknown type '{tv.type}' for '{tv.name}'")
-                inner[tv.name] = None  # type: ignore[assignment]
+                inner[tv.name] = None
             else:
                 inner[tv.name] = tv.type
         return inner
 
-    def _Aggregation(self, e: A.Aggregation, env: dict[str, str], expected: str | None) -> str | None:
+    def _Aggregation(self, e: A.Aggregation, env: Env, expected: str | None) -> str | None:
         inner = self._bind(e.params, env)
         t = self.infer(e.body, inner)
         op = e.op
@@ -589,7 +592,7 @@ class _ExprChecker:
             return "bool"
         return t
 
-    def _Function(self, e: A.Function, env: dict[str, str], expected: str | None) -> str | None:
+    def _Function(self, e: A.Function, env: Env, expected: str | None) -> str | None:
         ts = [self.infer(a, env) for a in e.args]
         spec = FUNCTIONS.get(e.name)
         if spec is None:
@@ -612,14 +615,14 @@ class _ExprChecker:
             return "int" if out == "bool" and e.name in ("abs", "mod") else out
         return res
 
-    def _MatrixOp(self, e: A.MatrixOp, env: dict[str, str], expected: str | None) -> str | None:
+    def _MatrixOp(self, e: A.MatrixOp, env: Env, expected: str | None) -> str | None:
         for v in (e.row, e.col):
             if v not in env:
                 self.rep.error(e.loc, "unknown-variable", f"variable '{v}' is not bound here")
         self.infer(e.body, env)
         return "real"
 
-    def _If(self, e: A.If, env: dict[str, str], expected: str | None) -> str | None:
+    def _If(self, e: A.If, env: Env, expected: str | None) -> str | None:
         ct = self.infer(e.cond, env)
         self.expect_numeric(ct, e.cond, "an if condition")
         a = self.infer(e.then, env, expected)
@@ -634,7 +637,7 @@ class _ExprChecker:
             self.rep.error(e.loc, "type", f"the branches give a value of {self.describe(a)} and a value of {self.describe(b)}")
         return j
 
-    def _Switch(self, e: A.Switch, env: dict[str, str], expected: str | None) -> str | None:
+    def _Switch(self, e: A.Switch, env: Env, expected: str | None) -> str | None:
         st = self.infer(e.subject, env)
         out: str | None = None
         first = True
@@ -661,7 +664,7 @@ class _ExprChecker:
                 out = None
         return out
 
-    def _Distribution(self, e: A.Distribution, env: dict[str, str], expected: str | None) -> str | None:
+    def _Distribution(self, e: A.Distribution, env: Env, expected: str | None) -> str | None:
         n, res = DISTRIBUTIONS[e.name]
         if e.name == "Dirichlet":
             self.infer(e.args[1], env)
@@ -678,7 +681,7 @@ class _ExprChecker:
             self.expect_numeric(t, a, f"a parameter of {e.name}")
         return res
 
-    def _Discrete(self, e: A.Discrete, env: dict[str, str], expected: str | None) -> str | None:
+    def _Discrete(self, e: A.Discrete, env: Env, expected: str | None) -> str | None:
         td = self.types.get(e.type)
         if td is None:
             self.rep.error(e.loc, "unknown-type", f"{e.name} over unknown type '{e.type}'")
@@ -702,7 +705,7 @@ class _ExprChecker:
             return None
         return e.type if td is not None else None
 
-    def _DiscreteOver(self, e: A.DiscreteOver, env: dict[str, str], expected: str | None) -> str | None:
+    def _DiscreteOver(self, e: A.DiscreteOver, env: Env, expected: str | None) -> str | None:
         inner = self._bind(e.params, env)
         self.expect_numeric(self.infer(e.body, inner), e.body, f"the weights of {e.name}_")
         if len(e.params) != 1:
@@ -711,7 +714,7 @@ class _ExprChecker:
         t = e.params[0].type
         return t if t in self.types else None
 
-    def _VectorDistribution(self, e: A.VectorDistribution, env: dict[str, str], expected: str | None) -> str | None:
+    def _VectorDistribution(self, e: A.VectorDistribution, env: Env, expected: str | None) -> str | None:
         for a in e.args:
             if isinstance(a, A.PVar) and a.name in self.pvars:
                 continue  # vector arguments are indexed by the free slots

@@ -529,7 +529,8 @@ def _syntax_diagnostic(err: UnexpectedInput, file: str, text: str) -> Diagnostic
     line = getattr(err, "line", 0) or 0
     column = getattr(err, "column", 0) or 0
     if isinstance(err, UnexpectedCharacters):
-        char = text[err.pos_in_stream] if err.pos_in_stream < len(text) else "?"
+        pos = err.pos_in_stream or 0
+        char = text[pos] if pos < len(text) else "?"
         if char == "'":
             msg = "unexpected \"'\": a prime goes right after a fluent name, as in running'(?x)"
         else:
@@ -610,7 +611,7 @@ def _block_spans(text: str) -> list[int]:
 def _parse_text(text: str, file: str) -> list[Any]:
     lark = _lark()
     _BUILDER.file = file
-    return lark.parse(text)  # type: ignore[no-any-return]
+    return lark.parse(text)  # type: ignore[return-value]
 
 
 def parse(text: str, file: str = "<string>") -> A.RDDLFile:
@@ -629,7 +630,7 @@ def _all_syntax_errors(text: str, file: str, first: UnexpectedInput) -> list[Dia
     if len(starts) <= 1:
         return diags
     bounds = starts + [len(text)]
-    for begin, end in zip(bounds, bounds[1:]):
+    for begin, end in zip(bounds, bounds[1:], strict=False):
         piece = text[begin:end]
         prefix_lines = text.count("\n", 0, begin)
         line_start = text.rfind("\n", 0, begin) + 1

@@ -6,7 +6,6 @@ import json
 from pathlib import Path
 
 from click.testing import CliRunner
-
 from ippc.rddl.cli import main
 
 from .test_parser import DOMAIN, INSTANCE_2018

@@ -6,7 +6,6 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
-
 from ippc.rddl import check_files, check_pair, parse_file
 
 from ..conftest import corpus_pairs, corpus_root

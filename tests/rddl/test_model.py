@@ -5,7 +5,6 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
-
 from ippc.rddl import RDDLSemanticError, check_files, load, load_model, load_pair
 
 from .test_parser import DOMAIN, INSTANCE_2018

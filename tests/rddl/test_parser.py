@@ -5,7 +5,6 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
-
 from ippc.rddl import RDDLSyntaxError, parse, parse_expr, parse_file
 from ippc.rddl import ast as A
 
