@@ -24,6 +24,7 @@ from lark.exceptions import UnexpectedCharacters, UnexpectedEOF, UnexpectedInput
 
 from . import ast as A
 from .errors import Diagnostic, RDDLSyntaxError, source_line
+from .lexer import RDDLLexer
 
 # Distributions written as `Name(args)`; every other `name(args)` in an
 # expression is a pvariable.
@@ -453,7 +454,7 @@ def _lark() -> Lark:
     return Lark(
         _grammar(),
         parser="lalr",
-        lexer="contextual",
+        lexer=RDDLLexer,
         maybe_placeholders=False,
         transformer=_BUILDER,
         cache=False,

@@ -186,7 +186,7 @@ SYNTAX = [
          8, 5, "syntax", ("'pvariable'", "expected", "did you mean 'pvariables'"), "pvariable"),
     case("misspelt-state-fluent",
          ("on(room) : { state-fluent,", "on(room) : { state-fluents,"),
-         11, 22, "syntax", ("unknown word 'state-fluents'", "did you mean 'state-fluent'"), "state-fluents"),
+         11, 22, "syntax", ("'state-fluents'", "expected", "did you mean 'state-fluent'"), "state-fluents"),
     case("misspelt-cpfs",
          ("    cpfs {", "    cpf {"),
          17, 5, "syntax", ("'cpf'", "expected", "did you mean 'cpfs'"), "cpf"),
