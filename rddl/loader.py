@@ -89,6 +89,18 @@ class _Index:
             self.instances.append((i, parsed.path))
 
 
+def _domain_checker(texts: dict[str, str]) -> Callable[[A.Domain], DomainCheck]:
+    """Check each domain once, however many instances use it."""
+    done: dict[int, DomainCheck] = {}
+
+    def domain_check(d: A.Domain) -> DomainCheck:
+        if id(d) not in done:
+            done[id(d)] = check_domain(d, texts)
+        return done[id(d)]
+
+    return domain_check
+
+
 def _mentions_domain(text: str, name: str) -> bool:
     return re.search(r"\bdomain\s+" + re.escape(name) + r"\s*\{", text) is not None
 
@@ -116,13 +128,7 @@ def check_files(*paths: str | os.PathLike[str]) -> list[CheckResult]:
     results: list[CheckResult] = []
     _parse_into(files, texts, index, results)
 
-    domain_checks: dict[int, DomainCheck] = {}
-
-    def domain_check(d: A.Domain) -> DomainCheck:
-        key = id(d)
-        if key not in domain_checks:
-            domain_checks[key] = check_domain(d, texts)
-        return domain_checks[key]
+    domain_check = _domain_checker(texts)
 
     used_domains: set[int] = set()
     for inst, ifile in index.instances:
@@ -247,12 +253,7 @@ def check_pair(domain_file: str | os.PathLike[str], instance_file: str | os.Path
         loc = A.Loc(str(ipath), 1, 1)
         results.append(CheckResult(ipath.name, "file", str(ipath), None, [Diagnostic(loc, "no-instance", "no instance block in this file")]))
         return results
-    cache: dict[int, DomainCheck] = {}
-
-    def domain_check(d: A.Domain) -> DomainCheck:
-        if id(d) not in cache:
-            cache[id(d)] = check_domain(d, texts)
-        return cache[id(d)]
+    domain_check = _domain_checker(texts)
 
     for inst, ifile in instances:
         results.append(_check_instance(inst, ifile, index, texts, domain_check, domains[0])[0])

@@ -76,8 +76,8 @@ class _Builder(Transformer):  # type: ignore[type-arg]
 
     def _at(self, first: Any) -> A.Loc:
         """The position of a rule: that of its first kept child."""
-        while isinstance(first, (tuple, list)) and first:
-            first = first[0] if not isinstance(first[0], str) or isinstance(first[0], Token) else first[1]
+        if isinstance(first, tuple):  # the children of a rule
+            first = first[0] if first else None
         if isinstance(first, Token):
             return A.Loc(self.file, first.line or 0, first.column or 0)
         loc = getattr(first, "loc", None)
