@@ -111,5 +111,41 @@ def fmt(file: str) -> None:
     click.echo(write(parsed), nl=False)
 
 
+@main.command()
+@click.argument("domain", type=click.Path(exists=True, dir_okay=False))
+@click.argument("instance", type=click.Path(exists=True, dir_okay=False))
+@click.option("--policy", type=click.Choice(["noop", "random"]), default="noop", show_default=True)
+@click.option("--episodes", type=click.IntRange(min=1), default=10, show_default=True)
+@click.option("--seed", type=int, default=0, show_default=True)
+@click.option("--horizon", type=click.IntRange(min=1), default=None, help="Steps per episode (default: the instance's).")
+@click.option("--instance-name", default=None, help="Which instance, when the file holds several.")
+@click.option("--json", "as_json", is_flag=True, help="Print one JSON object.")
+def sim(domain: str, instance: str, policy: str, episodes: int, seed: int, horizon: int | None, instance_name: str | None, as_json: bool) -> None:
+    """Simulate episodes of a policy on DOMAIN + INSTANCE files.
+
+    Prints the mean and standard deviation of the return (discounted, as
+    rddlsim's round reward), the steps simulated and steps per second.
+    """
+    from .loader import load_pair
+    from .rollout import run_episodes
+    from .simulator import SimulationError
+
+    try:
+        model = load_pair(domain, instance, instance_name)
+        stats = run_episodes(model, policy, episodes, seed, horizon)
+    except (RDDLError, SimulationError) as err:
+        text = err.render() if isinstance(err, RDDLError) else str(err)
+        raise click.ClickException(text) from None
+    if as_json:
+        click.echo(json.dumps(stats.as_dict()))
+        return
+    click.echo(f"instance          {stats.instance}")
+    click.echo(f"policy            {policy} ({episodes} episodes, seed {seed})")
+    click.echo(f"mean return       {stats.mean_return:.4f}")
+    click.echo(f"std return        {stats.std_return:.4f}")
+    click.echo(f"steps             {stats.steps}")
+    click.echo(f"steps per second  {stats.steps_per_second:.0f}")
+
+
 if __name__ == "__main__":  # pragma: no cover
     main()

@@ -660,6 +660,12 @@ def _order_cpfs(model: Model) -> list[str]:
     return order
 
 
+def _comb(n: int, k: int) -> int:
+    from math import comb
+
+    return comb(n, k)
+
+
 def _constant_fn(arr: Array) -> Fn:
     return lambda env: arr
 
@@ -875,6 +881,87 @@ class Simulator:
                 raise SimulationError(
                     f"{expr.loc}: constraint violated (state {i} of the batch): {_text(expr)}; actions: {acts}"
                 )
+
+    # -- action choice ---------------------------------------------
+
+    def _groundings(self) -> list[tuple[PVariable, tuple[int, ...]]]:
+        return [(p, idx) for p in self.action_fluents for _, idx in self._ground(p)]
+
+    def _random_value(self, p: PVariable, rng: np.random.Generator, n: int) -> Array:
+        """n values of action `p` that differ from its default."""
+        default = self._encode(p, self.model.default_of(p))
+        if p.range == "bool":
+            return np.full(n, not default)
+        if p.range in self._c.codes:
+            size = len(self._c.codes[p.range])
+            if size < 2:
+                return np.full(n, default)
+            draw = rng.integers(0, size - 1, n)
+            return draw + (draw >= default)  # type: ignore[no-any-return]
+        if p.range == "int":
+            step = rng.integers(1, 6, n)
+            return default + np.where(rng.random(n) < 0.5, -step, step)  # type: ignore[no-any-return]
+        return default + rng.uniform(-1.0, 1.0, n)  # type: ignore[no-any-return]
+
+    def random_actions(self, state: State, rng: np.random.Generator) -> dict[str, Array]:
+        """Random legal actions for every state of the batch, as rddlsim's
+        RandomConcurrentPolicy picks them: each action fluent in turn, its
+        groundings in a random order; each grounding is taken with
+        probability 1/2 (with a random non-default value) and kept only if
+        the constraints and max-nondef-actions still hold; at most
+        max-nondef-actions are taken."""
+        batch = state.batch
+        actions = self.noop(batch)
+        limit = self.model.max_nondef_actions
+        taken = np.zeros(batch, dtype=np.int64)
+        for p in self.action_fluents:
+            grounds = [idx for _, idx in self._ground(p)]
+            if not grounds:
+                continue
+            order = np.argsort(rng.random((batch, len(grounds))), axis=1)
+            rows = np.arange(batch)
+            for k in range(len(grounds)):
+                want = rng.random(batch) < 0.5
+                if limit is not None:
+                    want &= taken < limit
+                if not want.any():
+                    continue
+                flat = actions[p.name].reshape(batch, -1)
+                chosen = order[:, k]
+                before = flat[rows, chosen].copy()
+                flat[rows[want], chosen[want]] = self._random_value(p, rng, int(want.sum()))
+                legal = self.check_actions(state, actions)
+                revert = want & ~legal
+                flat[rows[revert], chosen[revert]] = before[revert]
+                taken += want & legal
+        if not self.check_actions(state, actions).all():
+            bad = int(np.argmin(self.check_actions(state, actions)))
+            raise SimulationError(f"no legal action in state {bad} of the batch, not even noop")
+        return actions
+
+    def legal_actions(self, state: State, index: int = 0, limit: int = 100_000) -> dict[str, Array]:
+        """Every legal joint action of a boolean action space in one state,
+        stacked along the batch axis (noop first when legal): all sets of at
+        most max-nondef-actions groundings set to their non-default value,
+        filtered by the preconditions. Raises if there are more than `limit`."""
+        grounds = self._groundings()
+        for p, _ in grounds:
+            if p.range != "bool":
+                raise SimulationError(f"legal_actions enumerates boolean actions only; '{p.name}' is {p.range}")
+        k_max = len(grounds) if self.model.max_nondef_actions is None else min(self.model.max_nondef_actions, len(grounds))
+        count = sum(_comb(len(grounds), k) for k in range(k_max + 1))
+        if count > limit:
+            raise SimulationError(f"{count} candidate joint actions, more than the limit of {limit}")
+        combos = [c for k in range(k_max + 1) for c in itertools.combinations(range(len(grounds)), k)]
+        actions = self.noop(len(combos))
+        for row, combo in enumerate(combos):
+            for g in combo:
+                p, idx = grounds[g]
+                actions[p.name][(row, *idx)] = not self._defaults[p.name][idx]
+        one = state[index]
+        many = one[[0] * len(combos)]
+        ok = self.check_actions(many, actions)
+        return {k: v[ok] for k, v in actions.items()}
 
     # -- wire form ---------------------------------------------------
 
