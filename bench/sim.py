@@ -1,0 +1,444 @@
+"""Simulation speed of ippc.rddl.simulator against pyRDDLGym on IPPC instances.
+
+What it measures
+    Ten instances of the installed ``rddlrepository`` package (``INSTANCES``
+    below; ``<Domain>_MDP_ippc20xx`` is ``IPPC20xx/<Domain>/MDP`` and
+    ``<Domain>_ippc2023`` is ``IPPC2023/<Domain>``, each with its
+    ``domain.rddl`` and ``instance<N>.rddl``). For each, in the same run:
+
+    build          ours: ``load_pair(domain, instance)`` then ``Simulator(m)``.
+                   pyRDDLGym: ``pyRDDLGym.make(domain, instance)`` (read,
+                   parse, lifted model, numpy simulator, gym spaces).
+    steps/s        single-state noop steps per second. Ours: ``sim.step(s,
+                   noop, rng)`` on a batch of 1 with the default
+                   ``check=True`` (action preconditions, state-action
+                   constraints and state invariants are checked), ``noop =
+                   sim.noop(1)`` built once. pyRDDLGym: ``env.step({})`` with
+                   its defaults (max-nondef-actions and state invariants
+                   checked, action preconditions not enforced). Both sides
+                   restart from the initial state when an episode ends
+                   (termination, or the instance's horizon).
+    ratio          ours / pyRDDLGym steps per second (higher = we are faster).
+    batched        states stepped per second by ours with ``--batch`` states
+                   (default 1024) per noop step, states whose episode ended
+                   restarted as above.
+    batch/single   our batched states per second / our single-state steps
+                   per second.
+
+    Goals (from the issue): ratio >= 3 on every instance, and batch/single
+    >= 100 on every instance.
+
+How
+    Builds: one untimed build per side first (it also pays one-off costs
+    such as grammar and parser tables, and tells whether the side fails),
+    then the best of ``--repeat`` timed builds. Steps: ``--warmup`` untimed
+    steps (a quarter of that for the batch), then the best of ``--repeat``
+    runs of ``--steps`` steps (default 200), each timed as a whole with
+    ``time.perf_counter`` and continuing from the state the previous one
+    reached. The timed runs of the two sides alternate (build ours, build
+    theirs, ...; steps ours, steps theirs, batched ours, ...), so that load
+    from elsewhere on the machine tends to fall on both sides alike.
+    ``gc.collect()`` runs before each timed run, outside the timing, and
+    ``gc.freeze()`` after start-up keeps imported modules out of every
+    collection (both sides alike). Random draws:
+    ``numpy.random.default_rng(0)`` for us, ``env.reset(seed=0)`` for
+    pyRDDLGym. pyRDDLGym's console output and warnings are silenced.
+
+    If a side raises on an instance (while building, or stepping, e.g. a
+    constraint that a noop violates), its error is shown in the instance's
+    row instead of figures; the run goes on.
+
+Usage
+    python bench/sim.py [--steps N] [--batch B] [--repeat R] [--warmup W]
+                        [--only TEXT] [--json]
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import gc
+import importlib.util
+import io
+import json
+import os
+import sys
+import time
+import warnings
+from collections.abc import Callable, Iterator
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from ippc.rddl import load_pair
+from ippc.rddl.simulator import Simulator, State
+
+INSTANCES: list[tuple[str, int]] = [
+    ("SysAdmin_MDP_ippc2011", 1),
+    ("SysAdmin_MDP_ippc2011", 10),
+    ("GameOfLife_MDP_ippc2011", 10),
+    ("Elevators_MDP_ippc2011", 10),
+    ("CrossingTraffic_MDP_ippc2011", 10),
+    ("AcademicAdvising_MDP_ippc2014", 10),
+    ("Traffic_MDP_ippc2011", 10),
+    ("Wildfire_MDP_ippc2014", 10),
+    ("Reservoir_ippc2023", 5),
+    ("HVAC_ippc2023", 5),
+]
+
+DEFAULT_STEPS = 200
+DEFAULT_BATCH = 1024
+DEFAULT_REPEAT = 3
+DEFAULT_WARMUP = 20
+SEED = 0
+GOAL_RATIO = 3.0  # ours / pyRDDLGym single-state steps per second
+GOAL_BATCH = 100.0  # our batched states per second / our single-state rate
+
+
+# --------------------------------------------------------------------------
+# instances
+
+
+@dataclass(frozen=True)
+class Instance:
+    name: str  # e.g. "SysAdmin_MDP_ippc2011 #10"
+    domain: Path
+    instance: Path
+
+
+def repository_root() -> Path:
+    """The folder of the installed rddlrepository package (not imported)."""
+    spec = importlib.util.find_spec("rddlrepository")
+    if spec is None or not spec.submodule_search_locations:
+        sys.exit("rddlrepository is not installed (pip install rddlrepository)")
+    return Path(next(iter(spec.submodule_search_locations)))
+
+
+def resolve(root: Path, name: str, number: int) -> Instance:
+    """`SysAdmin_MDP_ippc2011`, 10 -> .../IPPC2011/SysAdmin/MDP/instance10.rddl."""
+    parts = name.split("_")
+    domain, year = parts[0], parts[-1].removeprefix("ippc")
+    folder = root / "archive" / "competitions" / f"IPPC{year}" / domain
+    if len(parts) == 3:
+        folder /= parts[1]  # MDP / POMDP
+    return Instance(f"{name} #{number}", folder / "domain.rddl", folder / f"instance{number}.rddl")
+
+
+# --------------------------------------------------------------------------
+# measuring
+
+
+@dataclass
+class Row:
+    """Every figure for one instance; None where a side failed."""
+
+    instance: str
+    build_ms_ours: float | None = None
+    build_ms_theirs: float | None = None
+    steps_per_s_ours: float | None = None
+    steps_per_s_theirs: float | None = None
+    ratio: float | None = None  # ours / theirs, single state
+    batched_states_per_s: float | None = None
+    batch_ratio: float | None = None  # batched / single, ours
+    error_ours: str | None = None
+    error_theirs: str | None = None
+
+
+def describe(exc: BaseException) -> str:
+    text = " ".join(str(exc).split())
+    return f"{type(exc).__name__}: {text[:160]}"
+
+
+def timed(run: Callable[[], object]) -> float:
+    """Seconds one call of `run` takes (a collection runs first, untimed)."""
+    gc.collect()
+    start = time.perf_counter()
+    run()
+    return time.perf_counter() - start
+
+
+@contextlib.contextmanager
+def quiet() -> Iterator[None]:
+    """Swallow pyRDDLGym's prints and warnings."""
+    with contextlib.redirect_stdout(io.StringIO()), warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        yield
+
+
+class OurRunner:
+    """Our simulator stepping noops from the initial state, restarting
+    states whose episode ended (termination or horizon)."""
+
+    def __init__(self, sim: Simulator, horizon: int, batch: int) -> None:
+        self.sim = sim
+        self.horizon = horizon
+        self.batch = batch
+        self.initial = sim.initial_state(batch)
+        self.noop = sim.noop(batch)
+        self.rng = np.random.default_rng(SEED)
+        self.state = self.initial
+        self.t = 0
+
+    def run(self, steps: int) -> None:
+        sim, noop, rng, initial = self.sim, self.noop, self.rng, self.initial
+        state, t = self.state, self.t
+        for _ in range(steps):
+            out = sim.step(state, noop, rng)
+            state = out.next_state
+            t += 1
+            if t >= self.horizon:
+                state, t = initial, 0
+            elif out.done.any():
+                state = restart(state, out.done, initial)
+        self.state, self.t = state, t
+
+
+def restart(state: State, done: np.ndarray, initial: State) -> State:
+    """`state` with the states where `done` holds put back to `initial`."""
+    if done.all():
+        return initial
+    out = {}
+    for k, v in state.values.items():
+        mask = done.reshape((-1,) + (1,) * (v.ndim - 1))
+        out[k] = np.where(mask, initial.values[k], v)
+    return State(out)
+
+
+def build_ours(inst: Instance) -> tuple[Simulator, int]:
+    m = load_pair(inst.domain, inst.instance)
+    return Simulator(m), int(m.horizon or 0) or sys.maxsize
+
+
+def build_theirs(inst: Instance) -> Any:
+    import pyRDDLGym
+
+    return pyRDDLGym.make(str(inst.domain), str(inst.instance))
+
+
+def step_theirs(env: Any, steps: int) -> None:
+    for _ in range(steps):
+        env.step({})
+        if env.done:
+            env.reset()
+
+
+class Timer:
+    """Best-of timings of named runs for one side; the first exception
+    ends the side and is kept as its error."""
+
+    def __init__(self) -> None:
+        self.best: dict[str, float] = {}
+        self.error: str | None = None
+
+    def time(self, label: str, run: Callable[[], object]) -> None:
+        if self.error is not None:
+            return
+        try:
+            seconds = timed(run)
+        except Exception as exc:  # noqa: BLE001 - a benchmark must go on
+            self.error = describe(exc)
+            return
+        self.best[label] = min(self.best.get(label, float("inf")), seconds)
+
+    def setup(self, run: Callable[[], Any]) -> Any:
+        """`run()`, untimed; None (and the side ended) if it raises."""
+        if self.error is not None:
+            return None
+        try:
+            return run()
+        except Exception as exc:  # noqa: BLE001
+            self.error = describe(exc)
+            return None
+
+
+def measure(inst: Instance, steps: int, batch: int, repeat: int, warmup: int) -> Row:
+    """Every figure for `inst`. The timed runs of the two sides alternate
+    (build ours, build theirs, ..., steps ours, steps theirs, batched ours,
+    steps ours, ...), so that load from elsewhere on the machine falls on
+    both sides alike rather than on whichever ran during it."""
+    ours, theirs = Timer(), Timer()
+    with quiet():
+        built = ours.setup(lambda: build_ours(inst))
+        env = theirs.setup(lambda: build_theirs(inst))
+        for _ in range(repeat):
+            ours.time("build", lambda: build_ours(inst))
+            theirs.time("build", lambda: build_theirs(inst))
+
+        single = many = None
+        if built is not None:
+            sim, horizon = built
+            single = ours.setup(lambda: OurRunner(sim, horizon, 1))
+            many = ours.setup(lambda: OurRunner(sim, horizon, batch))
+            ours.setup(lambda: single.run(warmup) if single else None)
+            ours.setup(lambda: many.run(max(1, warmup // 4)) if many else None)
+        if env is not None:
+            theirs.setup(lambda: env.reset(seed=SEED))
+            theirs.setup(lambda: step_theirs(env, warmup))
+        for _ in range(repeat):
+            if single is not None:
+                ours.time("single", lambda: single.run(steps))
+            if env is not None:
+                theirs.time("single", lambda: step_theirs(env, steps))
+            if many is not None:
+                ours.time("batched", lambda: many.run(steps))
+
+    row = Row(inst.name, error_ours=ours.error, error_theirs=theirs.error)
+    if "build" in ours.best:
+        row.build_ms_ours = ours.best["build"] * 1e3
+    if "build" in theirs.best:
+        row.build_ms_theirs = theirs.best["build"] * 1e3
+    if ours.error is None and "single" in ours.best:
+        row.steps_per_s_ours = steps / ours.best["single"]
+    if theirs.error is None and "single" in theirs.best:
+        row.steps_per_s_theirs = steps / theirs.best["single"]
+    if ours.error is None and "batched" in ours.best:
+        row.batched_states_per_s = steps * batch / ours.best["batched"]
+    if row.steps_per_s_ours and row.steps_per_s_theirs:
+        row.ratio = row.steps_per_s_ours / row.steps_per_s_theirs
+    if row.steps_per_s_ours and row.batched_states_per_s:
+        row.batch_ratio = row.batched_states_per_s / row.steps_per_s_ours
+    return row
+
+
+# --------------------------------------------------------------------------
+# output
+
+
+def fmt(value: float | None, spec: str) -> str:
+    """`value` formatted by `spec` ("8.1f"), or "-" in the same width."""
+    if value is None:
+        return format("-", ">" + spec.split(".")[0])
+    return format(value, spec)
+
+
+def mark(value: float | None, goal: float) -> str:
+    if value is None:
+        return " "
+    return "ok" if value >= goal else "--"
+
+
+def goal_line(rows: list[Row], key: str, goal: float, what: str) -> str:
+    values = [(r.instance, getattr(r, key)) for r in rows]
+    measured = [(n, v) for n, v in values if v is not None]
+    met = sum(v >= goal for _, v in measured)
+    line = f"{what} >= {goal:g}x: {met}/{len(values)} instances meet it"
+    if measured:
+        worst = min(measured, key=lambda nv: nv[1])
+        line += f" (lowest {worst[1]:.2f}x, {worst[0]})"
+    missing = len(values) - len(measured)
+    if missing:
+        line += f"; {missing} not measured"
+    return line
+
+
+def print_table(rows: list[Row], args: argparse.Namespace, elapsed: float) -> None:
+    print(
+        f"noop steps: {args.steps} timed per run, best of {args.repeat}, after {args.warmup} "
+        f"warm-up; batched: {args.batch} states per step"
+    )
+    print()
+    head = (
+        f"{'instance':34} {'build ms':>8} {'':>8}  {'steps/s':>8} {'':>8}  {'ratio':>6}    "
+        f"{'batched':>10}  {'batch/':>7}"
+    )
+    sub = (
+        f"{'':34} {'ours':>8} {'theirs':>8}  {'ours':>8} {'theirs':>8}  {'≥3':>6}    "
+        f"{'states/s':>10}  {'single':>7}"
+    )
+    sub += "   ≥100"
+    print(head)
+    print(sub)
+    print("-" * len(sub))
+    for r in rows:
+        line = (
+            f"{r.instance:34} {fmt(r.build_ms_ours, '8.1f')} {fmt(r.build_ms_theirs, '8.1f')}  "
+            f"{fmt(r.steps_per_s_ours, '8.0f')} {fmt(r.steps_per_s_theirs, '8.0f')}  "
+            f"{fmt(r.ratio, '6.2f')} {mark(r.ratio, GOAL_RATIO):2}  "
+            f"{fmt(r.batched_states_per_s, '10.0f')}  {fmt(r.batch_ratio, '7.1f')} "
+            f"{mark(r.batch_ratio, GOAL_BATCH)}"
+        )
+        print(line.rstrip())
+        if r.error_ours:
+            print(f"{'':36}ours failed: {r.error_ours}")
+        if r.error_theirs:
+            print(f"{'':36}pyRDDLGym failed: {r.error_theirs}")
+    print()
+    print("goals (ok = met, -- = missed):")
+    print("  " + goal_line(rows, "ratio", GOAL_RATIO, "single-state ours/pyRDDLGym"))
+    print("  " + goal_line(rows, "batch_ratio", GOAL_BATCH, "ours batched/single-state"))
+    print()
+    print(f"run took {elapsed:.1f} s")
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0] if __doc__ else None)
+    ap.add_argument(
+        "--steps",
+        type=int,
+        default=DEFAULT_STEPS,
+        metavar="N",
+        help="noop steps per timed run (default %(default)s)",
+    )
+    ap.add_argument(
+        "--batch",
+        type=int,
+        default=DEFAULT_BATCH,
+        metavar="B",
+        help="states per batched step (default %(default)s)",
+    )
+    ap.add_argument(
+        "--repeat",
+        type=int,
+        default=DEFAULT_REPEAT,
+        metavar="R",
+        help="best of R timed runs (default %(default)s)",
+    )
+    ap.add_argument(
+        "--warmup",
+        type=int,
+        default=DEFAULT_WARMUP,
+        metavar="W",
+        help="untimed steps before timing (default %(default)s)",
+    )
+    ap.add_argument(
+        "--only", metavar="TEXT", default=None, help="only instances whose name contains TEXT"
+    )
+    ap.add_argument(
+        "--json", action="store_true", help="print one JSON object instead of the table"
+    )
+    args = ap.parse_args(argv)
+    if min(args.steps, args.batch, args.repeat) < 1 or args.warmup < 0:
+        ap.error("--steps, --batch and --repeat must be at least 1, --warmup at least 0")
+
+    started = time.perf_counter()
+    os.environ.setdefault("PYGAME_HIDE_SUPPORT_PROMPT", "1")
+    with quiet():
+        import pyRDDLGym  # noqa: F401 - imported here so its start-up is silenced
+    root = repository_root()
+    chosen = [resolve(root, n, i) for n, i in INSTANCES]
+    if args.only:
+        chosen = [c for c in chosen if args.only.lower() in c.name.lower()]
+    gc.collect()
+    gc.freeze()
+    rows = [measure(c, args.steps, args.batch, args.repeat, args.warmup) for c in chosen]
+    elapsed = time.perf_counter() - started
+
+    if args.json:
+        out = {
+            "steps": args.steps,
+            "batch": args.batch,
+            "repeat": args.repeat,
+            "warmup": args.warmup,
+            "goals": {"ratio": GOAL_RATIO, "batch_ratio": GOAL_BATCH},
+            "rows": [asdict(r) for r in rows],
+            "elapsed_s": elapsed,
+        }
+        print(json.dumps(out, indent=2))
+    else:
+        print_table(rows, args, elapsed)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
