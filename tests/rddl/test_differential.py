@@ -123,11 +123,36 @@ STOCHASTIC = [
 KNOWN_PYRDDLGYM_BUGS: dict[str, str] = {}
 
 # Our bugs: {instance: reason}; xfail(strict=True) until fixed.
-OUR_BUGS: dict[str, str] = {}
+_SHARED_DRAW = (
+    "ours: a distribution whose parameters do not depend on every variable in scope "
+    "draws one value shared by all groundings (e.g. p'(?x) = Bernoulli(0.5) gives every "
+    "?x the same value), so draws are correlated and the return's mean and variance differ"
+)
+OUR_BUGS: dict[str, str] = {
+    # running'(?x) = ... else Bernoulli(REBOOT-PROB): every down computer
+    # reboots together; ours 117.0 (var 985) vs 109.4 (var 569)
+    _C + "IPPC2011/SysAdmin/MDP/instance1.rddl": _SHARED_DRAW,
+    # Bernoulli(1.0 - DEATH-RATE-TAMARISK) and kin: ours -343 (var 8535) vs -391 (var 2430)
+    _C + "IPPC2014/Tamarisk/MDP/instance1.rddl": _SHARED_DRAW,
+}
 
-# Instances our simulator refuses to run: {instance: what SimulationError
-# says (a fragment)}. Asserted: the error must still be raised.
-CANNOT_RUN: dict[str, str] = {}
+# Instances our simulator refuses to run: {instance: what its SimulationError
+# says (a regular expression)}. Asserted: the error must still be raised.
+# Where the refusal is a constraint that noop violates, pyRDDLGym (which does
+# not enforce action constraints by default) runs the episodes anyway, and
+# so do we with check=False: the means are still compared.
+CANNOT_RUN: dict[str, str] = {
+    # noop rolls no die in the roll phases
+    _C + "IPPC2018/ChromaticDice/instance1.rddl": r"constraint violated .*current-phase == @roll1 => \(forall_\{\?d : die\} roll\(\?d\)\); actions: noop",
+    # exactly one of slew(...) or take-image each step
+    _C + "IPPC2018/EarthObservation/instance1.rddl": r"constraint violated .*== 1; actions: noop",
+    # either cash out or roll some die
+    _C + "IPPC2018/PushYourLuck/instance1.rddl": r"constraint violated .*cash-out \| \(exists_\{\?d : die\} roll\(\?d\)\); actions: noop",
+    # every ranger defends exactly one area
+    _C + "IPPC2018/WildlifePreserve/p1/instance1.rddl": r"constraint violated .*defend\(\?a, \?r\)\) == 1\); actions: noop",
+}
+# ...of which these are refused only by the constraint check
+UNCHECKED_OK = set(CANNOT_RUN)
 
 
 # ------------------------------------------------------------ helpers
@@ -299,7 +324,10 @@ def _candidate(
     return {(p.name, tuple(args)): value}, {key: theirs}
 
 
-def _run_deterministic(rel: str) -> Trace:
+def _run_deterministic(rel: str, policy: str) -> Trace:
+    """Step both simulators side by side: noop, or ("random") each step one
+    action grounding away from its default, drawn by a seeded rng, where
+    both find it legal (else noop)."""
     domain, instance = _pair(rel)
     model = load_pair(domain, instance)
     sim = Simulator(model)
@@ -310,26 +338,32 @@ def _run_deterministic(rel: str) -> Trace:
         env.reset(seed=0)
         state = sim.initial_state()
         trace.problems += [f"initial state: {d}" for d in _diff(_our_values(sim, state), env.state)]
-        horizon = min(STEPS, env.horizon)
-        for t in range(horizon):
+        for t in range(min(STEPS, env.horizon)):
             ours_named: dict[tuple[str, tuple[str, ...]], Any] = {}
             theirs: dict[str, Any] = {}
-            cand = _candidate(sim, env, rng)
+            cand = _candidate(sim, env, rng) if policy == "random" else None
             if cand is not None:
-                ours_try = sim.actions_from_names(cand[0])
-                ok_ours = bool(sim.check_actions(state, ours_try)[0])
+                ok_ours = bool(sim.check_actions(state, sim.actions_from_names(cand[0]))[0])
                 ok_theirs = _gym_legal(env, cand[1])
                 if ok_ours != ok_theirs:
                     trace.problems.append(
                         f"step {t}: {cand[1]} is legal for {'us' if ok_ours else 'pyRDDLGym'} only"
                     )
-                if ok_ours and ok_theirs:
+                    break
+                if ok_ours:
                     ours_named, theirs = cand
                     trace.actions_taken += 1
+            actions = sim.actions_from_names(ours_named)
+            legal = bool(sim.check_actions(state, actions)[0])
+            if not theirs and legal != _gym_legal(env, {}):
+                trace.problems.append(f"step {t}: noop is legal for {'us' if legal else 'pyRDDLGym'} only")
+                break
+            # pyRDDLGym does not enforce action constraints by default: where
+            # noop is illegal for both, both step anyway
             _, reward, terminated, truncated, _ = env.step(theirs)
             trace.steps += 1
             try:
-                out = sim.step(state, sim.actions_from_names(ours_named), rng, check=True)
+                out = sim.step(state, actions, rng, check=legal)
             except SimulationError as err:
                 # a state invariant violated by the next state: pyRDDLGym
                 # ends the episode there (truncated); anything else is ours
@@ -338,18 +372,19 @@ def _run_deterministic(rel: str) -> Trace:
                 if not truncated or t + 1 == env.horizon:
                     trace.problems.append(f"step {t}: {err}; pyRDDLGym finds every invariant holds")
                 break
+            label = f"step {t} ({theirs or 'noop'})"
             diffs = _diff(_our_values(sim, out.next_state), env.state)
-            trace.problems += [f"step {t} ({theirs or 'noop'}): {d}" for d in diffs[:5]]
+            trace.problems += [f"{label}: {d}" for d in diffs[:5]]
             if not _same(float(out.reward[0]), float(reward)):
                 trace.problems.append(
-                    f"step {t} ({theirs or 'noop'}): reward ours {float(out.reward[0])!r}, pyRDDLGym {float(reward)!r}"
+                    f"{label}: reward ours {float(out.reward[0])!r}, pyRDDLGym {float(reward)!r}"
                 )
             if bool(out.done[0]) != bool(terminated):
                 trace.problems.append(
-                    f"step {t}: termination ours {bool(out.done[0])}, pyRDDLGym {bool(terminated)}"
+                    f"{label}: termination ours {bool(out.done[0])}, pyRDDLGym {bool(terminated)}"
                 )
-            if truncated and t + 1 < env.horizon:
-                trace.problems.append(f"step {t}: pyRDDLGym finds a state invariant violated, we do not")
+            if truncated and legal and t + 1 < env.horizon:
+                trace.problems.append(f"{label}: pyRDDLGym finds a state invariant violated, we do not")
             if trace.problems or out.done[0] or terminated or truncated:
                 break
             state = out.next_state
@@ -360,7 +395,7 @@ def _mean_var(x: np.ndarray) -> tuple[float, float]:
     return float(np.mean(x)), float(np.var(x, ddof=1)) if len(x) > 1 else 0.0
 
 
-def _ours_returns(rel: str, steps: int, seed: int) -> np.ndarray:
+def _ours_returns(rel: str, steps: int, seed: int, check: bool = True) -> np.ndarray:
     domain, instance = _pair(rel)
     sim = Simulator(load_pair(domain, instance))
     rng = np.random.default_rng(seed)
@@ -368,7 +403,7 @@ def _ours_returns(rel: str, steps: int, seed: int) -> np.ndarray:
     alive = np.ones(EPISODES, dtype=bool)
     total = np.zeros(EPISODES)
     for _ in range(steps):
-        out = sim.step(state, None, rng, check=True)
+        out = sim.step(state, None, rng, check=check)
         total += np.where(alive, out.reward, 0.0)
         alive &= ~out.done
         if not alive.any():
@@ -393,15 +428,19 @@ def _gym_returns(env: Any, steps: int, seed: int) -> np.ndarray:
     return totals
 
 
-def _compare_means(rel: str) -> tuple[bool, str]:
+def _compare_means(rel: str, check: bool = True) -> tuple[bool, str]:
     env = _gym_env(rel)
     steps = min(EPISODE_STEPS, int(env.horizon))
-    ours = _ours_returns(rel, steps, seed=11)
+    ours = _ours_returns(rel, steps, seed=11, check=check)
     theirs = _gym_returns(env, steps, seed=11)
     ma, va = _mean_var(ours)
     mb, vb = _mean_var(theirs)
     bound = Z99 * math.sqrt(va / len(ours) + vb / len(theirs)) + EPSILON
-    msg = f"mean return of noop over {EPISODES}x{steps}: ours {ma:.6g} (var {va:.4g}), pyRDDLGym {mb:.6g} (var {vb:.4g}), |diff| {abs(ma - mb):.4g} vs bound {bound:.4g}"
+    msg = (
+        f"mean return of noop over {EPISODES} episodes of {steps} steps: "
+        f"ours {ma:.6g} (var {va:.4g}), pyRDDLGym {mb:.6g} (var {vb:.4g}); "
+        f"|difference| {abs(ma - mb):.4g}, bound {bound:.4g}"
+    )
     return abs(ma - mb) <= bound, msg
 
 
@@ -426,14 +465,15 @@ def test_deterministic_list_is_complete() -> None:
     assert stochastic >= 500
 
 
+@pytest.mark.parametrize("policy", ["noop", "random"])
 @pytest.mark.parametrize("rel", _params(DETERMINISTIC))
-def test_deterministic_trajectory_agrees(rel: str) -> None:
+def test_deterministic_trajectory_agrees(rel: str, policy: str) -> None:
     _needs_corpus()
     if rel in CANNOT_RUN:
         with pytest.raises(SimulationError, match=CANNOT_RUN[rel]):
-            _run_deterministic(rel)
+            _run_deterministic(rel, policy)
         pytest.skip(f"our simulator cannot run it: {CANNOT_RUN[rel]}")
-    trace = _run_deterministic(rel)
+    trace = _run_deterministic(rel, policy)
     if rel in KNOWN_PYRDDLGYM_BUGS:
         assert trace.problems, f"no longer disagrees with pyRDDLGym: drop it from KNOWN_PYRDDLGYM_BUGS ({KNOWN_PYRDDLGYM_BUGS[rel]})"
         return
@@ -444,11 +484,14 @@ def test_deterministic_trajectory_agrees(rel: str) -> None:
 @pytest.mark.parametrize("rel", _params(STOCHASTIC))
 def test_stochastic_noop_return_agrees(rel: str) -> None:
     _needs_corpus()
+    check = True
     if rel in CANNOT_RUN:
         with pytest.raises(SimulationError, match=CANNOT_RUN[rel]):
             _compare_means(rel)
-        pytest.skip(f"our simulator cannot run it: {CANNOT_RUN[rel]}")
-    ok, msg = _compare_means(rel)
+        if rel not in UNCHECKED_OK:
+            pytest.skip(f"our simulator cannot run it: {CANNOT_RUN[rel]}")
+        check = False
+    ok, msg = _compare_means(rel, check=check)
     if rel in KNOWN_PYRDDLGYM_BUGS:
         assert not ok, f"no longer disagrees with pyRDDLGym: drop it from KNOWN_PYRDDLGYM_BUGS ({KNOWN_PYRDDLGYM_BUGS[rel]}); {msg}"
         return
