@@ -660,6 +660,9 @@ def _order_cpfs(model: Model) -> list[str]:
     return order
 
 
+_WINDOW = 64  # candidate additions tested per batched call in random_actions
+
+
 def _comb(n: int, k: int) -> int:
     from math import comb
 
@@ -913,30 +916,80 @@ class Simulator:
         batch = state.batch
         actions = self.noop(batch)
         limit = self.model.max_nondef_actions
+        if not self._preconditions:
+            return self._random_unconstrained(actions, batch, limit, rng)
         taken = np.zeros(batch, dtype=np.int64)
         for p in self.action_fluents:
-            grounds = [idx for _, idx in self._ground(p)]
-            if not grounds:
+            flat = actions[p.name].reshape(batch, -1)
+            n = flat.shape[1]
+            if n == 0:
                 continue
-            order = np.argsort(rng.random((batch, len(grounds))), axis=1)
-            rows = np.arange(batch)
-            for k in range(len(grounds)):
-                want = rng.random(batch) < 0.5
+            order = np.argsort(rng.random((batch, n)), axis=1)
+            heads = rng.random((batch, n)) < 0.5
+            values = self._random_value(p, rng, batch * n).reshape(batch, n)
+            # Between two additions the action set does not change, so the
+            # sequential rule (try each flipped grounding in order, keep it if
+            # still legal) takes the first legal one: test a window of
+            # candidates in one batched call instead of one call each.
+            pos = np.zeros(batch, dtype=np.int64)
+            while True:
+                active = pos < n
                 if limit is not None:
-                    want &= taken < limit
-                if not want.any():
+                    active &= taken < limit
+                if not active.any():
+                    break
+                cand_b, cand_j = [], []
+                for b in np.nonzero(active)[0]:
+                    js = pos[b] + np.nonzero(heads[b, pos[b]: pos[b] + _WINDOW])[0]
+                    if len(js) == 0:
+                        pos[b] = min(n, pos[b] + _WINDOW)
+                        continue
+                    cand_b.extend([b] * len(js))
+                    cand_j.extend(js.tolist())
+                if not cand_b:
                     continue
-                flat = actions[p.name].reshape(batch, -1)
-                chosen = order[:, k]
-                before = flat[rows, chosen].copy()
-                flat[rows[want], chosen[want]] = self._random_value(p, rng, int(want.sum()))
-                legal = self.check_actions(state, actions)
-                revert = want & ~legal
-                flat[rows[revert], chosen[revert]] = before[revert]
-                taken += want & legal
+                cb = np.array(cand_b)
+                cj = np.array(cand_j)
+                trial = {k: v[cb].copy() for k, v in actions.items()}
+                tflat = trial[p.name].reshape(len(cb), -1)
+                tflat[np.arange(len(cb)), order[cb, cj]] = values[cb, cj]
+                legal = self.check_actions(state[cb], trial)
+                for b in np.unique(cb):
+                    mine = cb == b
+                    ok = np.nonzero(legal & mine)[0]
+                    if len(ok):
+                        first = ok[0]
+                        j = cj[first]
+                        flat[b, order[b, j]] = values[b, j]
+                        taken[b] += 1
+                        pos[b] = j + 1
+                    else:
+                        pos[b] = cj[mine].max() + 1
         if not self.check_actions(state, actions).all():
             bad = int(np.argmin(self.check_actions(state, actions)))
             raise SimulationError(f"no legal action in state {bad} of the batch, not even noop")
+        return actions
+
+    def _random_unconstrained(
+        self, actions: dict[str, Array], batch: int, limit: int | None, rng: np.random.Generator
+    ) -> dict[str, Array]:
+        """The same choice without constraints to check, all at once: in each
+        fluent's random order, the coin flips that come up, up to the limit
+        (counted across fluents in declaration order)."""
+        taken = np.zeros(batch, dtype=np.int64)
+        for p in self.action_fluents:
+            flat = actions[p.name].reshape(batch, -1)
+            n = flat.shape[1]
+            if n == 0:
+                continue
+            order = np.argsort(rng.random((batch, n)), axis=1)
+            heads = rng.random((batch, n)) < 0.5
+            if limit is not None:
+                rank = taken[:, None] + np.cumsum(heads, axis=1)
+                heads &= rank <= limit
+            rows = np.nonzero(heads)
+            flat[rows[0], order[rows]] = self._random_value(p, rng, len(rows[0]))
+            taken += heads.sum(axis=1)
         return actions
 
     def legal_actions(self, state: State, index: int = 0, limit: int = 100_000) -> dict[str, Array]:
