@@ -146,6 +146,9 @@ class _Compiler:
     def shape_of(self, p: PVariable) -> tuple[int, ...]:
         return tuple(self.sizes[t] for t in p.params)
 
+    def scope_shape(self, scope: Scope) -> tuple[int, ...]:
+        return tuple(self.sizes[t] for _, t in scope)
+
     @staticmethod
     def rank(scope: Scope) -> int:
         return 1 + len(scope)
@@ -445,10 +448,12 @@ class _Compiler:
             return (lambda env: np.asarray(f0(env), dtype=np.float64)), "real"
         fns = [self.numeric(a, scope)[0] for a in e.args]
         where = f"{e.loc}: {name}"
+        # one independent draw per batch element and per grounding of every
+        # variable in scope, whatever the parameters depend on
+        full = self.scope_shape(scope)
 
         def shape(env: _Env, *params: Array) -> tuple[int, ...]:
-            s = np.broadcast_shapes(*(p.shape for p in params))
-            return (env.batch,) + s[1:]
+            return (env.batch,) + full
 
         def rng(env: _Env) -> np.random.Generator:
             if env.rng is None:
@@ -563,12 +568,12 @@ class _Compiler:
         codes = np.array(labels, dtype=np.int64)
         normalise = e.name == "UnnormDiscrete"
         where = f"{e.loc}: {e.name}"
+        draw_shape = self.scope_shape(scope)
 
         def discrete(env: _Env) -> Array:
             ps = [None if f is None else np.asarray(f(env), dtype=np.float64) for f in probs]
             known = [p for p in ps if p is not None]
-            shp = np.broadcast_shapes(*(p.shape for p in known)) if known else (1,) * self.rank(scope)
-            shp = (env.batch,) + shp[1:]
+            shp = (env.batch,) + draw_shape
             full = [np.broadcast_to(p, shp) if p is not None else None for p in ps]
             total_known = sum(p for p in full if p is not None) if known else np.zeros(shp)
             stacked = np.stack(
@@ -598,10 +603,11 @@ class _Compiler:
         size = self.sizes[e.params[0].type]
         normalise = e.name == "UnnormDiscrete"
         where = f"{e.loc}: {e.name}_"
+        full = self.scope_shape(scope)
 
         def discrete_over(env: _Env) -> Array:
             w = np.asarray(wf(env), dtype=np.float64)
-            w = np.broadcast_to(w, (env.batch,) + w.shape[1:-1] + (size,))
+            w = np.broadcast_to(w, (env.batch,) + full + (size,))
             total = w.sum(axis=-1)
             if np.any(w < 0):
                 raise SimulationError(f"{where} has a negative probability")
@@ -730,7 +736,9 @@ class Simulator:
             dtype = self._dtype(p)
 
             def run(env: _Env) -> Array:
-                return np.broadcast_to(fn(env), (env.batch,) + shape).astype(dtype, copy=False)
+                # an owned, writable array: a broadcast view would be read-only,
+                # and a cpf like KronDelta(p(?x)) would alias the current state
+                return np.array(np.broadcast_to(fn(env), (env.batch,) + shape), dtype=dtype)
 
             return run
 

@@ -193,3 +193,27 @@ def test_batch_matches_single_states(rddlsim_rddl: Path) -> None:
         assert arr.shape[0] == 1024, name
     # indexing a batch gives a batch of one
     assert out.next_state[5].batch == 1
+
+
+IID = """\
+domain iid { types { obj : object; };
+  pvariables { p(obj) : { state-fluent, bool, default = false };
+               a : { action-fluent, bool, default = false }; };
+  cpfs { p'(?x) = Bernoulli(0.5); };
+  reward = sum_{?x : obj} p(?x); }
+instance iid_1 { domain = iid; objects { obj : {o1,o2,o3,o4,o5,o6,o7,o8}; };
+  max-nondef-actions = 1; horizon = 10; discount = 1.0; }
+"""
+
+
+def test_each_grounding_draws_independently(tmp_path: Path) -> None:
+    # Bernoulli(0.5) depends on no variable, yet every ?x gets its own draw
+    (tmp_path / "iid.rddl").write_text(IID)
+    sim = Simulator(load_model(tmp_path))
+    out = sim.step(sim.initial_state(2000), None, np.random.default_rng(0))
+    p = out.next_state.values["p"]
+    rows_all_equal = (p.all(axis=1) | (~p).all(axis=1)).mean()
+    assert rows_all_equal < 0.05  # 2 / 2**8 if independent, 1.0 if shared
+    assert abs(p.mean() - 0.5) < 0.02
+    # and the next state is the caller's to change
+    p[0, 0] = not p[0, 0]
