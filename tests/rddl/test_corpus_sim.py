@@ -1,0 +1,113 @@
+"""Every rddlrepository instance simulates: noop to its horizon, and rddlsim's
+random policy for its first steps. Slow: marked, and run in CI by `make test`.
+
+Where a domain forbids noop, or its dynamics break its own invariants, or it
+uses what the simulator does not support, the instance is listed here with
+the error the simulator gives, and the test asserts that error.
+"""
+
+from __future__ import annotations
+
+import logging
+import re
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from ippc.rddl import load_pair
+from ippc.rddl.rollout import run_episodes
+from ippc.rddl.simulator import SimulationError, Simulator
+
+from ..conftest import corpus_pairs, corpus_root
+
+pytestmark = pytest.mark.slow
+
+RANDOM_STEPS = 10  # the random policy's cost grows with constrained action groundings
+
+# Folder (relative to the package) -> (policy that fails, error it must give).
+NOOP_ILLEGAL = "constraint violated"
+EXPECTED_FAILURES: dict[str, tuple[str, str]] = {
+    # action preconditions that require an action every step
+    "archive/arcade/Tetris": ("noop", NOOP_ILLEGAL),
+    "archive/competitions/IPPC2018/ChromaticDice": ("noop", NOOP_ILLEGAL),
+    "archive/competitions/IPPC2018/EarthObservation": ("noop", NOOP_ILLEGAL),
+    "archive/competitions/IPPC2018/PushYourLuck": ("noop", NOOP_ILLEGAL),
+    "archive/competitions/IPPC2018/WildlifePreserve": ("noop", NOOP_ILLEGAL),
+    "archive/or/BinPacking": ("noop", NOOP_ILLEGAL),
+    "archive/or/TSP": ("noop", NOOP_ILLEGAL),
+    # doing nothing lets the pole fall past the angle the invariant allows
+    "archive/gym/CartPole": ("noop", "state invariant violated"),
+    # random moves (seed 0) put two people on one cell, which the invariant forbids
+    "archive/rddlsim/Sidewalk/instance1.rddl": ("random", "state invariant violated"),
+    # broken domain: @good gets probability 1 - 1 - 0.05 when every computer runs
+    "archive/rddlsim/ComplexSysAdmin": ("noop", "Discrete has a negative probability"),
+    # pyRDDLGym's matrix functions are not simulated
+    "archive/or/Option": ("build", "MatrixOp is not supported"),
+}
+
+# Instances whose random policy is too slow for CI: 50,000 and more action
+# groundings without max-nondef-actions (seconds to minutes per step).
+RANDOM_TOO_SLOW = {
+    "archive/competitions/IPPC2023/RecSim/instance3.rddl",
+    "archive/competitions/IPPC2023/RecSim/instance4.rddl",
+    "archive/competitions/IPPC2023/RecSim/instance5.rddl",
+    "archive/competitions/IPPC2023/RecSim/instance7.rddl",
+}
+
+PAIRS = corpus_pairs()
+
+
+def _rel(path: Path) -> str:
+    root = corpus_root()
+    assert root is not None
+    return path.relative_to(root).as_posix()
+
+
+def _expected(rel: str) -> tuple[str, str] | None:
+    for folder, outcome in EXPECTED_FAILURES.items():
+        if rel == folder or rel.startswith(folder + "/"):
+            return outcome
+    return None
+
+
+@pytest.mark.parametrize("pair", PAIRS, ids=[_rel(p[1]) for p in PAIRS])
+def test_instance_simulates(pair: tuple[Path, Path]) -> None:
+    logging.disable(logging.WARNING)
+    try:
+        domain, instance = pair
+        rel = _rel(instance)
+        model = load_pair(domain, instance)
+        expected = _expected(rel)
+        failed: tuple[str, str] | None = None
+        try:
+            sim = Simulator(model)
+        except SimulationError as err:
+            failed = ("build", str(err))
+        else:
+            for policy, horizon in (("noop", None), ("random", min(RANDOM_STEPS, model.horizon or RANDOM_STEPS))):
+                if policy == "random" and rel in RANDOM_TOO_SLOW:
+                    continue
+                try:
+                    stats = run_episodes(model, policy, episodes=2, seed=0, horizon=horizon, simulator=sim)
+                except SimulationError as err:
+                    failed = (policy, str(err))
+                    break
+                assert np.isfinite(stats.returns).all(), (policy, stats.returns)
+                assert stats.steps > 0
+        if expected is None:
+            assert failed is None, failed
+        else:
+            assert failed is not None, f"expected {expected} but it ran"
+            assert failed[0] == expected[0] and re.search(expected[1], failed[1]), failed
+    finally:
+        logging.disable(logging.NOTSET)
+
+
+def test_expected_failure_folders_exist() -> None:
+    if corpus_root() is None:
+        pytest.skip("rddlrepository is not installed")
+    rels = {_rel(p[1]) for p in PAIRS}
+    for folder in EXPECTED_FAILURES:
+        assert any(r == folder or r.startswith(folder + "/") for r in rels), folder
+    assert RANDOM_TOO_SLOW <= rels
