@@ -14,7 +14,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
 from ippc.rddl import load_pair
 from ippc.rddl.rollout import run_episodes
 from ippc.rddl.simulator import SimulationError, Simulator
