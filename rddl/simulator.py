@@ -927,13 +927,8 @@ class Simulator:
         if not self._preconditions:
             return self._random_unconstrained(actions, batch, limit, rng)
         taken = np.zeros(batch, dtype=np.int64)
-        for p in self.action_fluents:
-            flat = actions[p.name].reshape(batch, -1)
+        for p, flat, order, heads in self._coin_flips(actions, batch, rng):
             n = flat.shape[1]
-            if n == 0:
-                continue
-            order = np.argsort(rng.random((batch, n)), axis=1)
-            heads = rng.random((batch, n)) < 0.5
             values = self._random_value(p, rng, batch * n).reshape(batch, n)
             # Between two additions the action set does not change, so the
             # sequential rule (try each flipped grounding in order, keep it if
@@ -978,6 +973,19 @@ class Simulator:
             raise SimulationError(f"no legal action in state {bad} of the batch, not even noop")
         return actions
 
+    def _coin_flips(
+        self, actions: dict[str, Array], batch: int, rng: np.random.Generator
+    ) -> Iterable[tuple[PVariable, Array, Array, Array]]:
+        """Per action fluent with groundings: its flattened action array (a
+        view to write into), a random order of its groundings per state, and
+        a fair coin flip per grounding."""
+        for p in self.action_fluents:
+            flat = actions[p.name].reshape(batch, -1)
+            n = flat.shape[1]
+            if n == 0:
+                continue
+            yield p, flat, np.argsort(rng.random((batch, n)), axis=1), rng.random((batch, n)) < 0.5
+
     def _random_unconstrained(
         self, actions: dict[str, Array], batch: int, limit: int | None, rng: np.random.Generator
     ) -> dict[str, Array]:
@@ -985,13 +993,7 @@ class Simulator:
         fluent's random order, the coin flips that come up, up to the limit
         (counted across fluents in declaration order)."""
         taken = np.zeros(batch, dtype=np.int64)
-        for p in self.action_fluents:
-            flat = actions[p.name].reshape(batch, -1)
-            n = flat.shape[1]
-            if n == 0:
-                continue
-            order = np.argsort(rng.random((batch, n)), axis=1)
-            heads = rng.random((batch, n)) < 0.5
+        for p, flat, order, heads in self._coin_flips(actions, batch, rng):
             if limit is not None:
                 rank = taken[:, None] + np.cumsum(heads, axis=1)
                 heads &= rank <= limit
