@@ -581,17 +581,7 @@ class _Compiler:
             )
             if np.any(stacked < -1e-12):
                 raise SimulationError(f"{where} has a negative probability")
-            total = stacked.sum(axis=-1)
-            if normalise:
-                stacked = stacked / total[..., None]
-            elif np.any(np.abs(total - 1.0) > 1e-6):
-                raise SimulationError(f"{where} probabilities sum to {float(total.flat[np.argmax(np.abs(total - 1.0).flat)])}, not 1")
-            cum = np.cumsum(stacked, axis=-1)
-            if env.rng is None:
-                raise SimulationError(f"{where}: a random draw needs a numpy Generator (rng)")
-            u = env.rng.random(shp)[..., None] * cum[..., -1:]
-            idx = np.minimum(np.sum(cum <= u, axis=-1), len(labels) - 1)
-            return codes[idx]  # type: ignore[no-any-return]
+            return codes[_draw_categorical(stacked, normalise, where, env.rng)]  # type: ignore[no-any-return]
 
         return discrete, t
 
@@ -608,18 +598,9 @@ class _Compiler:
         def discrete_over(env: _Env) -> Array:
             w = np.asarray(wf(env), dtype=np.float64)
             w = np.broadcast_to(w, (env.batch,) + full + (size,))
-            total = w.sum(axis=-1)
             if np.any(w < 0):
                 raise SimulationError(f"{where} has a negative probability")
-            if normalise:
-                w = w / total[..., None]
-            elif np.any(np.abs(total - 1.0) > 1e-6):
-                raise SimulationError(f"{where} probabilities sum to {float(total.flat[0])}, not 1")
-            cum = np.cumsum(w, axis=-1)
-            if env.rng is None:
-                raise SimulationError(f"{where}: a random draw needs a numpy Generator (rng)")
-            u = env.rng.random(w.shape[:-1])[..., None] * cum[..., -1:]
-            return np.minimum(np.sum(cum <= u, axis=-1), size - 1)  # type: ignore[no-any-return]
+            return _draw_categorical(w, normalise, where, env.rng)
 
         return discrete_over, e.params[0].type
 
@@ -628,6 +609,26 @@ class _Compiler:
 
     _MatrixOp = _unsupported
     _VectorDistribution = _unsupported
+
+
+def _draw_categorical(
+    weights: Array, normalise: bool, where: str, rng: np.random.Generator | None
+) -> Array:
+    """One index per leading position, drawn with the probabilities along the
+    last axis: normalised (UnnormDiscrete) or required to sum to 1."""
+    total = weights.sum(axis=-1)
+    if normalise:
+        weights = weights / total[..., None]
+    else:
+        off = np.abs(total - 1.0)
+        if np.any(off > 1e-6):
+            worst = float(total.flat[int(np.argmax(off))])
+            raise SimulationError(f"{where} probabilities sum to {worst}, not 1")
+    if rng is None:
+        raise SimulationError(f"{where}: a random draw needs a numpy Generator (rng)")
+    cum = np.cumsum(weights, axis=-1)
+    u = rng.random(weights.shape[:-1])[..., None] * cum[..., -1:]
+    return np.minimum(np.sum(cum <= u, axis=-1), weights.shape[-1] - 1)  # type: ignore[no-any-return]
 
 
 def _order_cpfs(model: Model) -> list[str]:
