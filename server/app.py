@@ -1,0 +1,120 @@
+"""The listener: one trio task per connection, nothing shared but the
+read-only instances and the result sinks.
+
+`serve(config, registry)` runs until cancelled (or, with
+`individual_session`, until its one session ends). Tests start it with
+`nursery.start(serve, config, registry)`, which returns the bound port.
+"""
+
+from __future__ import annotations
+
+import logging
+import signal
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import trio
+
+from .config import ServerConfig
+from .registry import Registry
+from .session import Services, Session
+
+log = logging.getLogger(__name__)
+
+
+def open_services(config: ServerConfig, registry: Registry, port: int) -> Services:
+    """The result store, rddlsim's log file and the transcript factory the
+    configuration asks for."""
+    from .records import RddlsimLog, TranscriptWriter
+    from .store import ResultStore
+
+    store = ResultStore(config.db) if config.db is not None else None
+    rlog = RddlsimLog(RddlsimLog.default_path(config.log_dir, port)) if config.log_dir is not None else None
+    transcripts: Callable[[int, dict[str, Any]], Any] | None = None
+    if config.transcripts is not None:
+        folder = Path(config.transcripts)
+        folder.mkdir(parents=True, exist_ok=True)
+        stamp = time.strftime("%Y%m%d-%H%M%S")
+
+        def transcripts(session_id: int, meta: dict[str, Any]) -> Any:
+            stem = f"{stamp}-p{port}-s{session_id}-{meta.get('instance', 'unknown')}"
+            return TranscriptWriter(TranscriptWriter.unique_path(folder, stem), meta)
+
+    return Services(config, registry, store=store, rddlsim_log=rlog, transcripts=transcripts)
+
+
+def close_services(services: Services, reason: str) -> None:
+    if services.store is not None:
+        n = services.store.interrupt_open(reason, time.time())
+        if n:
+            log.warning("%d open session(s) recorded as interrupted: %s", n, reason)
+        services.store.close()
+    if services.rddlsim_log is not None:
+        services.rddlsim_log.close()
+
+
+async def serve(
+    config: ServerConfig,
+    registry: Registry,
+    *,
+    task_status: trio.TaskStatus[int] = trio.TASK_STATUS_IGNORED,
+    services: Services | None = None,
+    handle_signals: bool = False,
+) -> Services:
+    """Accept connections and play a session on each.
+
+    Reports the bound port through `task_status` once listening. Returns the
+    services (with the last session's status) when it stops: cancelled, a
+    signal with `handle_signals`, or the end of the one session of
+    `individual_session`.
+    """
+    listeners = await trio.open_tcp_listeners(config.port, host=config.host)
+    port = listeners[0].socket.getsockname()[1]
+    svc = services or open_services(config, registry, port)
+    reason = "server stopped"
+    try:
+        async with trio.open_nursery() as nursery:
+            if handle_signals:
+                nursery.start_soon(_watch_signals, nursery.cancel_scope)
+
+            async def handler(stream: trio.SocketStream) -> None:
+                try:
+                    host, cport = stream.socket.getpeername()[:2]
+                    peer = f"{host}:{cport}"
+                except OSError:
+                    peer = "?"
+                session = Session(svc, stream, peer)
+                await session.run()
+                svc.last_status = session.status
+                if config.individual_session:
+                    nursery.cancel_scope.cancel()
+
+            async def accept_loop(listener: trio.SocketListener) -> None:
+                async with listener:
+                    while True:
+                        try:
+                            stream = await listener.accept()
+                        except OSError as err:  # e.g. too many open files: wait, go on
+                            log.error("accept failed: %s", err)
+                            await trio.sleep(0.1)
+                            continue
+                        nursery.start_soon(handler, stream)
+                        if config.individual_session:
+                            return
+
+            for listener in listeners:
+                nursery.start_soon(accept_loop, listener)
+            task_status.started(port)
+    finally:
+        close_services(svc, reason)
+    return svc
+
+
+async def _watch_signals(scope: trio.CancelScope) -> None:
+    with trio.open_signal_receiver(signal.SIGINT, signal.SIGTERM) as signals:
+        async for signum in signals:
+            log.warning("signal %s: shutting down; open sessions are recorded as interrupted", signal.Signals(signum).name)
+            scope.cancel()
+            return

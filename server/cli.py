@@ -1,0 +1,107 @@
+"""`rddl-server`: rddlsim's competition server, with its options named."""
+
+from __future__ import annotations
+
+import logging
+import sys
+from pathlib import Path
+
+import click
+import trio
+
+from ..rddl import RDDLError
+from .app import serve
+from .config import DEFAULT_PORT, DEFAULT_ROUNDS, DEFAULT_TIMEOUT, ServerConfig
+from .registry import Registry
+
+
+@click.command(context_settings={"help_option_names": ["-h", "--help"]})
+@click.argument("rddl_dir", type=click.Path(exists=True, path_type=Path))
+@click.option("--host", default="127.0.0.1", show_default=True, help="Address to bind (rddlsim binds every interface; we bind loopback unless told).")
+@click.option("--port", default=DEFAULT_PORT, show_default=True, help="TCP port; 0 picks a free one.")
+@click.option("--rounds", default=DEFAULT_ROUNDS, show_default=True, help="Rounds per session.")
+@click.option("--seed", default=0, show_default=True, help="Session k uses seed + k - 1.")
+@click.option("--timeout", default=DEFAULT_TIMEOUT, show_default=True, type=float, help="Session budget in seconds; 0 = not enforced.")
+@click.option("--individual-session", is_flag=True, help="Serve one connection, then exit (exit code 1 if it failed).")
+@click.option("--monitor-execution", is_flag=True, help="Round-requests without execute-policy yes play uncounted practice rounds.")
+@click.option("--log-dir", type=click.Path(file_okay=False, path_type=Path), help="Write rddlsim's log file logs-PORT.log here.")
+@click.option("--db", type=click.Path(dir_okay=False, path_type=Path), help="SQLite result database (sessions, rounds, steps).")
+@click.option("--transcripts", type=click.Path(file_okay=False, path_type=Path), help="Record every message of every session here (JSON lines).")
+@click.option("--idle-timeout", type=float, default=None, help="Close a session whose client is silent this many seconds (off by default, as rddlsim).")
+@click.option("-q", "--quiet", is_flag=True, help="Log warnings only.")
+def main(
+    rddl_dir: Path,
+    host: str,
+    port: int,
+    rounds: int,
+    seed: int,
+    timeout: float,
+    individual_session: bool,
+    monitor_execution: bool,
+    log_dir: Path | None,
+    db: Path | None,
+    transcripts: Path | None,
+    idle_timeout: float | None,
+    quiet: bool,
+) -> None:
+    """Serve every RDDL instance under RDDL_DIR to IPPC clients (PROST,
+    rddlsim's client, rddl-client) over rddlsim's protocol."""
+    logging.basicConfig(
+        level=logging.WARNING if quiet else logging.INFO,
+        format="%(asctime)s %(levelname)s %(name)s: %(message)s",
+        stream=sys.stderr,
+    )
+    if rounds < 1:
+        raise click.BadParameter("must be at least 1", param_hint="--rounds")
+    if idle_timeout is not None and idle_timeout <= 0:
+        raise click.BadParameter("must be positive", param_hint="--idle-timeout")
+    try:
+        registry = Registry.load(rddl_dir)
+    except RDDLError as err:
+        raise click.ClickException(str(err)) from None
+    if not len(registry):
+        raise click.ClickException(f"no instance to serve under {rddl_dir}")
+    if log_dir is not None:
+        log_dir.mkdir(parents=True, exist_ok=True)
+    config = ServerConfig(
+        host=host,
+        port=port,
+        rounds=rounds,
+        seed=seed,
+        timeout=timeout,
+        individual_session=individual_session,
+        monitor_execution=monitor_execution,
+        log_dir=log_dir,
+        db=db,
+        transcripts=transcripts,
+        idle_timeout=idle_timeout,
+    )
+
+    async def run() -> str | None:
+        async with trio.open_nursery() as nursery:
+            bound = await nursery.start(_serve_and_stop, config, registry, nursery.cancel_scope)
+            click.echo(f"listening on {host}:{bound}", err=False)
+            sys.stdout.flush()
+            click.echo(f"serving {len(registry)} instance(s): {', '.join(registry.names()[:8])}"
+                       + (" ..." if len(registry) > 8 else ""), err=True)
+        return _last_status[0]
+
+    try:
+        status = trio.run(run)
+    except KeyboardInterrupt:
+        status = None
+    except OSError as err:
+        raise click.ClickException(f"cannot listen on {host}:{port}: {err}") from None
+    if individual_session and status not in (None, "finished", "timeout"):
+        sys.exit(1)
+
+
+_last_status: list[str | None] = [None]
+
+
+async def _serve_and_stop(
+    config: ServerConfig, registry: Registry, outer: trio.CancelScope, task_status: trio.TaskStatus[int] = trio.TASK_STATUS_IGNORED
+) -> None:
+    svc = await serve(config, registry, task_status=task_status, handle_signals=True)
+    _last_status[0] = svc.last_status
+    outer.cancel()

@@ -1,0 +1,38 @@
+"""Server settings: rddlsim's command-line arguments as named options."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+DEFAULT_PORT = 2323
+DEFAULT_ROUNDS = 30
+DEFAULT_TIMEOUT = 1080  # seconds: rddlsim's 18 minutes
+DEFAULT_TIME_ALLOWED_MS = 1_080_000.0
+
+
+@dataclass(frozen=True)
+class ServerConfig:
+    """What `rddl-server` is told; the defaults are rddlsim's."""
+
+    host: str = "127.0.0.1"
+    port: int = DEFAULT_PORT
+    rounds: int = DEFAULT_ROUNDS
+    seed: int = 0
+    # seconds; 0 = not enforced (time-allowed is still reported as rddlsim's default)
+    timeout: float = DEFAULT_TIMEOUT
+    individual_session: bool = False
+    monitor_execution: bool = False
+    log_dir: Path | None = None
+    db: Path | None = None
+    transcripts: Path | None = None
+    idle_timeout: float | None = None  # seconds a client may stay silent; None = forever, as rddlsim
+    max_message_size: int = 10 * 1024 * 1024
+
+    @property
+    def enforce_timeout(self) -> bool:
+        return self.timeout > 0
+
+    @property
+    def time_allowed_ms(self) -> float:
+        return float(self.timeout * 1000) if self.timeout > 0 else DEFAULT_TIME_ALLOWED_MS

@@ -1,0 +1,447 @@
+"""One client session, as rddlsim's server plays it, on one trio stream.
+
+The protocol state machine (`ippc.protocol.ServerConnection`) decides what
+may be sent and received; this module decides what to send: it looks up the
+instance, steps the simulator, keeps the session clock, records every step
+in the result store before the next message goes out, and ends the session
+(only this one) with a log line when something goes wrong.
+
+rddlsim's rules kept here: session k is seeded with seed + k - 1 and its
+generator is not reseeded between rounds; the state is reset at every
+round-init; turn 1 reports reward 0.0 and turn k the reward of transition
+k - 1; the budget is checked after each transition only, and on expiry the
+round ends and session-end follows; illegal actions end the round and keep
+the session; under monitor-execution a round-request without
+`execute-policy yes` plays an uncounted practice round.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import trio
+
+from ..protocol import (
+    MAX_MESSAGE_SIZE,
+    Actions,
+    ConnectionClosed,
+    Fluent,
+    MessageReader,
+    ProtocolError,
+    ResourceNotification,
+    ResourceRequest,
+    RoundEnd,
+    RoundInit,
+    RoundRequest,
+    ServerConnection,
+    SessionEnd,
+    SessionInit,
+    SessionRequest,
+    Turn,
+    encode,
+)
+from ..protocol import NEED_DATA as _NEED_DATA
+from ..protocol.values import parse_value
+from ..rddl.simulator import SimulationError, Simulator, State
+from ..rddl.wire import WireCodec, WireError, WireFluent, value_kind
+from .config import ServerConfig
+from .registry import Instance, Registry, UnknownInstance
+
+log = logging.getLogger(__name__)
+
+
+class SessionDropped(Exception):
+    """The session cannot go on; the message says why (for the log)."""
+
+
+@dataclass
+class Services:
+    """What every session shares: settings, instances, result sinks."""
+
+    config: ServerConfig
+    registry: Registry
+    store: Any = None  # server.store.ResultStore or None
+    rddlsim_log: Any = None  # server.records.RddlsimLog or None
+    transcripts: Any = None  # callable(session_id, meta) -> TranscriptWriter, or None
+    next_id: int = 0
+    last_status: str | None = None  # of the last session that ended
+    open_sessions: dict[int, Any] = field(default_factory=dict)
+
+    def new_session_id(self) -> int:
+        # rddlsim counts every accepted connection, failed ones included.
+        self.next_id += 1
+        return self.next_id
+
+
+class _Channel:
+    """A stream, its protocol state machine, and the transcript."""
+
+    def __init__(self, stream: trio.abc.Stream, services: Services, session_id: int, t0: float):
+        self.stream = stream
+        self.conn = ServerConnection(max_message_size=services.config.max_message_size)
+        self.idle_timeout = services.config.idle_timeout
+        self.session_id = session_id
+        self.t0 = t0
+        self.transcript: Any = None
+        # records kept until the transcript exists; None = no transcripts
+        self._early: list[tuple[str, tuple[Any, ...], dict[str, Any]]] | None = (
+            [] if services.transcripts is not None else None
+        )
+        # A second reader over the same inbound bytes finds the message
+        # boundaries for the transcript (the state machine keeps its own).
+        self._frames = MessageReader("nul", max_size=services.config.max_message_size + 1)
+        self.last_message: bytes | None = None
+
+    def _t(self) -> float:
+        return round(time.monotonic() - self.t0, 4)
+
+    def start_transcript(self, transcript: Any) -> None:
+        """From now on record to `transcript`, starting with what came
+        before it existed (the session-request)."""
+        self.transcript = transcript
+        for kind, args, kwargs in self._early:
+            getattr(transcript, kind)(*args, **kwargs)
+        self._early.clear()
+
+    def _write(self, kind: str, *args: Any, **kwargs: Any) -> None:
+        if self.transcript is not None:
+            getattr(self.transcript, kind)(*args, **kwargs)
+        elif self._early is not None and len(self._early) < 16:
+            self._early.append((kind, args, kwargs))
+
+    def _record_inbound(self, data: bytes) -> None:
+        if self._early is None:
+            return
+        try:
+            if data:
+                self._frames.feed(data)
+            else:
+                self._frames.feed_eof()
+            while (frame := self._frames.next_message()) is not None:
+                self._write("message", "c2s", frame + b"\0", conn=self.session_id, t=self._t())
+        except ProtocolError:
+            self._write("note", "inbound bytes that are not a message (see the log)")
+        if not data:
+            self._write("eof", "c2s", conn=self.session_id, t=self._t())
+
+    async def receive(self) -> Any:
+        """The next message from the client (never NEED_DATA)."""
+        while True:
+            event = self.conn.next_event()
+            if event is not _NEED_DATA:
+                return event
+            try:
+                if self.idle_timeout is not None:
+                    with trio.fail_after(self.idle_timeout):
+                        data = await self.stream.receive_some(65536)
+                else:
+                    data = await self.stream.receive_some(65536)
+            except trio.TooSlowError:
+                raise SessionDropped(f"client silent for {self.idle_timeout:g} s (--idle-timeout)") from None
+            except (trio.BrokenResourceError, trio.ClosedResourceError, OSError) as err:
+                raise SessionDropped(f"connection lost: {err}") from None
+            self._record_inbound(data)
+            self.conn.receive_data(data)
+
+    async def send(self, msg: Any) -> None:
+        data = self.conn.send(msg)
+        try:
+            await self.stream.send_all(data)
+        except (trio.BrokenResourceError, trio.ClosedResourceError, OSError) as err:
+            raise SessionDropped(f"connection lost while sending {type(msg).__name__}: {err}") from None
+        self._write("message", "s2c", data, conn=self.session_id, t=self._t())
+
+
+def _time_left_ms(start: float, allowed_ms: float) -> int:
+    # rddlsim: timeAllowed - (now - start), in whole milliseconds.
+    return int(allowed_ms - (time.monotonic() - start) * 1000.0)
+
+
+@dataclass
+class _Round:
+    number: int  # round-init's round-num
+    counted: bool
+    reward: float = 0.0
+    turns: int = 0
+    immediate: float = 0.0
+    status: str = "finished"
+
+
+class Session:
+    """One connection, from session-request to session-end."""
+
+    def __init__(self, services: Services, stream: trio.abc.Stream, peer: str):
+        self.services = services
+        self.config = services.config
+        self.stream = stream
+        self.peer = peer
+        self.id = services.new_session_id()
+        self.start = time.monotonic()
+        self.channel = _Channel(stream, services, self.id, self.start)
+        self.client_name = "?"
+        self.instance_name = "?"
+        self.db_id: int | None = None
+        self.round_db_id: int | None = None
+        self.rounds_used = 0
+        self.total_reward = 0.0
+        self.status = "open"
+        self._round = _Round(0, counted=False)
+
+    # -- helpers
+
+    def _ms(self) -> int:
+        return _time_left_ms(self.start, self.config.time_allowed_ms)
+
+    def _out_of_time(self) -> bool:
+        return self.config.enforce_timeout and (time.monotonic() - self.start) * 1000.0 > self.config.time_allowed_ms
+
+    def describe(self) -> str:
+        return f"session {self.id} ({self.peer}, client {self.client_name!r}, instance {self.instance_name!r})"
+
+    async def _expect(self, *types: type) -> Any:
+        """The next message of one of `types`; resource-requests are
+        answered on the way, as rddlsim answers them."""
+        while True:
+            event = await self.channel.receive()
+            if isinstance(event, ConnectionClosed):
+                raise SessionDropped("the client closed the connection")
+            if isinstance(event, ResourceRequest):
+                await self.channel.send(ResourceNotification(time_left=float(self._ms())))
+                continue
+            if isinstance(event, types):
+                return event
+            raise SessionDropped(f"expected {' or '.join(t.__name__ for t in types)}, got {type(event).__name__}")
+
+    # -- the session
+
+    async def run(self) -> None:
+        """Play the session; every failure ends this session only."""
+        svc = self.services
+        svc.open_sessions[self.id] = self
+        if svc.rddlsim_log is not None:
+            host, _, _ = self.peer.rpartition(":")
+            svc.rddlsim_log.client_info("localhost" if host in ("127.0.0.1", "::1") else host, host)
+        try:
+            await self._play()
+            self.status = "finished" if self.status == "open" else self.status
+        except SessionDropped as err:
+            self._drop(str(err))
+        except ProtocolError as err:
+            self._drop(f"protocol error: {err}")
+        except trio.Cancelled:
+            self._end_store("interrupted", "server shut down")
+            raise
+        finally:
+            svc.open_sessions.pop(self.id, None)
+            if self.channel.transcript is not None:
+                self.channel.transcript.close()
+            try:
+                await self.stream.aclose()
+            except (trio.BrokenResourceError, trio.ClosedResourceError, OSError):
+                pass
+
+    def _drop(self, why: str) -> None:
+        self.status = "dropped"
+        log.warning("%s closed: %s", self.describe(), why)
+        self._end_store("dropped", why)
+
+    def _end_store(self, status: str, reason: str | None) -> None:
+        store = self.services.store
+        if store is None or self.db_id is None:
+            return
+        now = time.time()
+        if self.round_db_id is not None:
+            store.end_round(self.round_db_id, reward=self._round.reward, turns_used=self._round.turns, status=status, ended_at=now)
+            self.round_db_id = None
+        store.end_session(self.db_id, total_reward=self.total_reward, rounds_used=self.rounds_used, status=status, reason=reason, ended_at=now)
+        self.db_id = None
+
+    async def _play(self) -> None:
+        cfg = self.config
+        svc = self.services
+        request = await self.channel.receive()
+        if isinstance(request, ConnectionClosed):
+            raise SessionDropped("the client closed the connection before its session-request")
+        if not isinstance(request, SessionRequest):
+            raise SessionDropped(f"expected a session-request, got {type(request).__name__}")
+        self.client_name = request.client_name
+        self.instance_name = request.problem_name
+        if request.input_language not in (None, "rddl"):
+            raise SessionDropped(f"input-language {request.input_language!r} is not served (only rddl)")
+        try:
+            instance = svc.registry.get(request.problem_name)
+        except UnknownInstance as err:
+            raise SessionDropped(str(err)) from None
+        sim, codec = await instance.compiled()
+        seed = cfg.seed + self.id - 1
+        rng = np.random.default_rng(seed)
+        if svc.transcripts is not None:
+            self.channel.start_transcript(svc.transcripts(
+                self.id,
+                {
+                    "instance": instance.name,
+                    "client": self.client_name,
+                    "session_id": self.id,
+                    "seed": seed,
+                    "no_header": request.no_header,
+                    "server": "ippc rddl-server",
+                },
+            ))
+        await self.channel.send(
+            SessionInit(task=instance.task, session_id=self.id, num_rounds=cfg.rounds, time_allowed=cfg.time_allowed_ms)
+        )
+        if svc.store is not None:
+            self.db_id = svc.store.start_session(
+                server_session_id=self.id,
+                instance=instance.name,
+                client_name=self.client_name,
+                seed=seed,
+                num_rounds=cfg.rounds,
+                time_allowed_ms=cfg.time_allowed_ms,
+                peer=self.peer,
+                no_header=request.no_header,
+                started_at=time.time(),
+            )
+        log.info("%s started (seed %d)", self.describe(), seed)
+
+        counted = 0
+        out_of_time = False
+        while counted < cfg.rounds and not out_of_time:
+            req = await self._expect(RoundRequest)
+            practice = cfg.monitor_execution and req.execute_policy is not True
+            number = counted if practice else counted + 1
+            rnd = _Round(number, counted=not practice)
+            out_of_time = await self._play_round(instance, sim, codec, rng, rnd)
+            if not practice:
+                counted += 1
+                self.total_reward += rnd.reward
+            self.rounds_used = counted
+        end = SessionEnd(
+            instance_name=instance.name,
+            total_reward=self.total_reward,
+            rounds_used=counted,
+            client_name=self.client_name,
+            session_id=self.id,
+            time_left=self._ms(),
+        )
+        await self.channel.send(end)
+        self._log_document(encode(end))
+        status = "timeout" if out_of_time else "finished"
+        self.status = status
+        if svc.store is not None and self.db_id is not None:
+            svc.store.end_session(self.db_id, total_reward=self.total_reward, rounds_used=counted, status=status, reason=None, ended_at=time.time())
+            self.db_id = None
+        log.info("%s ended: total reward %s over %d rounds (%s)", self.describe(), self.total_reward, counted, status)
+
+    def _log_document(self, doc: bytes) -> None:
+        if self.services.rddlsim_log is not None:
+            self.services.rddlsim_log.message(doc)
+
+    async def _play_round(
+        self, instance: Instance, sim: Simulator, codec: WireCodec, rng: np.random.Generator, rnd: _Round
+    ) -> bool:
+        """One round; returns whether the session ran out of time."""
+        cfg = self.config
+        store = self.services.store
+        self._round = rnd
+        await self.channel.send(RoundInit(round_num=rnd.number, round_left=cfg.rounds - rnd.number, time_left=float(self._ms())))
+        if store is not None and self.db_id is not None:
+            self.round_db_id = store.start_round(self.db_id, round_num=rnd.number, counted=rnd.counted, started_at=time.time())
+        state: State = sim.initial_state(1)
+        observation: dict[str, np.ndarray] | None = None
+        discount = instance.model.discount
+        horizon = instance.horizon
+        cur_discount = 1.0
+        out_of_time = False
+        while True:
+            sent = codec.turn_fluents(state, observation)
+            wire = None if sent is None else tuple(Fluent(n, a, v) for n, a, v in sent)
+            await self.channel.send(Turn(turn_num=rnd.turns + 1, time_left=float(self._ms()), immediate_reward=rnd.immediate, fluents=wire))
+            sent_at = time.time()
+            actions = await self._expect(Actions)
+            received_at = time.time()
+            decoded = self._decode_actions(codec, actions)
+            why = codec.check(state, decoded)
+            if why is not None:
+                if cfg.individual_session:
+                    # rddlsim exits (code 1) here in individual-session mode
+                    raise SessionDropped(f"illegal actions in individual-session mode: {why}")
+                log.info("%s round %d: illegal actions end the round: %s", self.describe(), rnd.number, why)
+                rnd.status = "illegal-action"
+                break
+            try:
+                with np.errstate(all="ignore"):
+                    step = sim.step(state, decoded.arrays, rng, check=True)
+            except SimulationError as err:
+                raise SessionDropped(f"simulation error in round {rnd.number}, turn {rnd.turns + 1}: {err}") from None
+            reward = float(step.reward[0])
+            rnd.immediate = reward
+            rnd.reward += cur_discount * reward
+            cur_discount *= discount
+            rnd.turns += 1
+            if store is not None and self.round_db_id is not None:
+                store.record_step(
+                    self.round_db_id,
+                    turn_num=rnd.turns,
+                    state=[] if sent is None else sent,
+                    actions=[(a.name, tuple(a.args), a.value) for a in actions.actions],
+                    reward=reward,
+                    turn_sent_at=sent_at,
+                    actions_received_at=received_at,
+                )
+            state = step.next_state
+            observation = step.observation
+            if self._out_of_time():
+                out_of_time = True
+                rnd.status = "timeout"
+                break
+            if horizon is not None and rnd.turns >= horizon:
+                break
+            if bool(step.done[0]):
+                rnd.status = "terminal"
+                break
+        end = RoundEnd(
+            instance_name=instance.name,
+            client_name=self.client_name,
+            round_num=rnd.number - 1,
+            round_reward=rnd.reward,
+            turns_used=rnd.turns,
+            time_left=self._ms(),
+            immediate_reward=rnd.immediate,
+        )
+        await self.channel.send(end)
+        self._log_document(encode(end))
+        if store is not None and self.round_db_id is not None:
+            store.end_round(self.round_db_id, reward=rnd.reward, turns_used=rnd.turns, status=rnd.status, ended_at=time.time())
+            self.round_db_id = None
+        return out_of_time
+
+    def _decode_actions(self, codec: WireCodec, actions: Actions) -> Any:
+        """Received actions -> arrays, with rddlsim's reading of values."""
+        model = codec.model
+        typed: list[WireFluent] = []
+        for a in actions.actions:
+            p = model.pvariables.get(a.name)
+            if p is None:
+                raise SessionDropped(f"unknown action {a.name!r} in {_show(actions)}")
+            try:
+                value = parse_value(str(a.value), value_kind(model, p))
+            except ValueError:
+                raise SessionDropped(f"action {a.name!r}: value {a.value!r} is not a {p.range}") from None
+            typed.append((a.name, tuple(a.args), value))
+        try:
+            return codec.actions_from(typed)
+        except WireError as err:
+            raise SessionDropped(f"{err} in {_show(actions)}") from None
+
+
+def _show(actions: Actions, limit: int = 200) -> str:
+    text = encode(actions, declaration=False).decode("ascii", "replace")
+    return text if len(text) <= limit else text[:limit] + "..."
+
+
+__all__ = ["Services", "Session", "SessionDropped", "MAX_MESSAGE_SIZE"]

@@ -1,0 +1,454 @@
+"""The result store: every session, round and step the server plays, in SQLite.
+
+Theory of operation
+-------------------
+The server calls this store synchronously from its trio thread, so every call is one
+short transaction that is committed before the call returns. The database runs in WAL
+mode with ``synchronous=NORMAL``: a commit appends to the write-ahead log without an
+fsync, which is quick (tens of microseconds) and survives the death of the process
+(``kill -9``) because the log lives in the operating system's page cache; only a power
+failure can lose the last commits. A step is therefore safe once ``record_step``
+returns, and the server sends its next message only after that.
+
+Three tables (see ``_SCHEMA``): ``sessions`` (one row per session-request that named an
+instance), ``rounds`` (one per round-init) and ``steps`` (one per simulated transition:
+the state the server sent in the turn, the actions the client answered and the reward
+of that transition). State and actions are JSON text, a list of ``[name, [args...],
+value]``. Rows start with status ``open``; ``end_round``/``end_session`` close them and
+``interrupt_open`` closes whatever a shutting-down server leaves open.
+
+Several processes may open the same file (a busy timeout makes writers wait for each
+other). Each store tags the sessions it starts with an owner token, so that
+``interrupt_open`` of one server does not close the live sessions of another.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import socket
+import sqlite3
+import threading
+import uuid
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any
+
+__all__ = [
+    "ROUND_STATUSES",
+    "SCHEMA_VERSION",
+    "SESSION_STATUSES",
+    "ResultStore",
+    "decode_fluents",
+    "encode_fluents",
+]
+
+log = logging.getLogger(__name__)
+
+#: Value of ``PRAGMA user_version`` for the schema below.
+SCHEMA_VERSION = 1
+
+#: Final statuses of a session (``open`` while it runs).
+SESSION_STATUSES = frozenset({"finished", "timeout", "dropped", "interrupted"})
+#: Final statuses of a round (``open`` while it runs).
+ROUND_STATUSES = frozenset(
+    {"finished", "terminal", "illegal-action", "timeout", "dropped", "interrupted"}
+)
+
+_SCHEMA = """
+CREATE TABLE IF NOT EXISTS sessions (
+    id                INTEGER PRIMARY KEY,
+    server_session_id INTEGER NOT NULL,   -- rddlsim's session-id (k-th connection)
+    instance          TEXT    NOT NULL,
+    client_name       TEXT    NOT NULL,
+    seed              INTEGER NOT NULL,
+    num_rounds        INTEGER NOT NULL,
+    time_allowed_ms   REAL    NOT NULL,
+    peer              TEXT    NOT NULL,   -- "host:port" of the client
+    no_header         INTEGER NOT NULL,   -- 0/1
+    started_at        REAL    NOT NULL,   -- unix seconds
+    ended_at          REAL,
+    status            TEXT    NOT NULL DEFAULT 'open' CHECK (status IN
+                      ('open', 'finished', 'timeout', 'dropped', 'interrupted')),
+    total_reward      REAL,
+    rounds_used       INTEGER,
+    reason            TEXT,
+    owner             TEXT    NOT NULL    -- which ResultStore started it
+);
+CREATE TABLE IF NOT EXISTS rounds (
+    id          INTEGER PRIMARY KEY,
+    session_id  INTEGER NOT NULL REFERENCES sessions(id),
+    round_num   INTEGER NOT NULL,         -- rddlsim's round-init round-num
+    counted     INTEGER NOT NULL,         -- 0 for a practice round (execute-policy no)
+    started_at  REAL    NOT NULL,
+    ended_at    REAL,
+    status      TEXT    NOT NULL DEFAULT 'open' CHECK (status IN
+                ('open', 'finished', 'terminal', 'illegal-action', 'timeout', 'dropped',
+                 'interrupted')),
+    reward      REAL,                     -- discounted sum, as in round-end
+    turns_used  INTEGER
+);
+CREATE INDEX IF NOT EXISTS rounds_by_session ON rounds(session_id);
+CREATE TABLE IF NOT EXISTS steps (
+    id                  INTEGER PRIMARY KEY,
+    round_id            INTEGER NOT NULL REFERENCES rounds(id),
+    turn_num            INTEGER NOT NULL,
+    state               TEXT    NOT NULL, -- JSON [[name, [args...], value], ...]
+    actions             TEXT    NOT NULL, -- JSON, same form
+    reward              REAL    NOT NULL, -- reward of this transition
+    turn_sent_at        REAL    NOT NULL,
+    actions_received_at REAL    NOT NULL,
+    UNIQUE (round_id, turn_num)
+);
+"""
+
+Fluent = tuple[str, tuple[str, ...], object]
+
+
+def _json_default(value: object) -> object:
+    # numpy scalars (numpy.bool_, numpy.int64, numpy.str_ ...) have .item(), which gives
+    # the plain Python value; anything else is a caller error.
+    item = getattr(value, "item", None)
+    if callable(item):
+        plain = item()
+        if isinstance(plain, bool | int | float | str):
+            return plain
+    raise TypeError(f"fluent value {value!r} of type {type(value).__name__} is not "
+                    "bool, int, float or str")
+
+
+_ENCODER = json.JSONEncoder(separators=(",", ":"), default=_json_default)
+
+
+def encode_fluents(fluents: list[tuple[str, tuple[str, ...], object]]) -> str:
+    """JSON text for a list of ``(name, args, value)``: ``[[name, [args...], value], ...]``.
+
+    Values must be bool, int, float or str (numpy scalars are converted). Non-finite
+    floats are written as ``NaN``/``Infinity``, which Python's json reads back.
+    """
+    # Tuples serialise as JSON arrays, so the list goes to the (C) encoder as it is.
+    return _ENCODER.encode(fluents)
+
+
+def decode_fluents(text: str) -> list[Fluent]:
+    """The inverse of :func:`encode_fluents`: a list of ``(name, args, value)`` tuples."""
+    return [(name, tuple(args), value) for name, args, value in json.loads(text)]
+
+
+def _real(x: object) -> float:
+    return float(x)  # type: ignore[arg-type]  # numpy floats and ints convert
+
+
+def _opt_real(x: object | None) -> float | None:
+    return None if x is None else _real(x)
+
+
+class ResultStore:
+    """Sessions, rounds and steps in one SQLite database (WAL, ``synchronous=NORMAL``).
+
+    Every writing method is one transaction, committed before it returns. ``path`` may be
+    ``":memory:"`` (tests); a missing parent folder of a file is created. The store may
+    be used from any thread (calls are serialised by a lock). ``busy_timeout_ms`` bounds
+    how long a write waits for another process that holds the database's write lock.
+    """
+
+    def __init__(self, path: str | Path, *, busy_timeout_ms: int = 5000) -> None:
+        self.path = str(path)
+        #: Token stored with every session this store starts (see ``interrupt_open``).
+        self.owner = f"{socket.gethostname()}:{os.getpid()}:{uuid.uuid4().hex[:12]}"
+        self._lock = threading.Lock()
+        self._closed = False
+        if self.path != ":memory:" and not self.path.startswith("file:"):
+            Path(self.path).parent.mkdir(parents=True, exist_ok=True)
+        # isolation_level=None: the sqlite3 module opens no transactions on its own;
+        # a lone statement commits when it completes and the longer writes use an
+        # explicit BEGIN IMMEDIATE (so two processes never deadlock upgrading a lock).
+        self._conn = sqlite3.connect(
+            self.path,
+            timeout=busy_timeout_ms / 1000.0,
+            isolation_level=None,
+            check_same_thread=False,
+        )
+        try:
+            self._conn.execute(f"PRAGMA busy_timeout = {int(busy_timeout_ms)}")
+            mode = self._conn.execute("PRAGMA journal_mode = WAL").fetchone()[0]
+            if mode != "wal" and self.path != ":memory:":
+                log.warning("result store %s: journal mode is %r, not WAL", self.path, mode)
+            self._conn.execute("PRAGMA synchronous = NORMAL")
+            self._conn.execute("PRAGMA foreign_keys = ON")
+            self._create_schema()
+        except BaseException:
+            self._conn.close()
+            raise
+
+    def _create_schema(self) -> None:
+        with self._tx() as cur:
+            version = cur.execute("PRAGMA user_version").fetchone()[0]
+            if version > SCHEMA_VERSION:
+                raise RuntimeError(
+                    f"result store {self.path} has schema version {version}; this ippc "
+                    f"knows only up to {SCHEMA_VERSION}"
+                )
+            if version < SCHEMA_VERSION:
+                for statement in _SCHEMA.split(";"):
+                    if statement.strip():
+                        cur.execute(statement)
+                cur.execute(f"PRAGMA user_version = {SCHEMA_VERSION}")
+
+    @contextmanager
+    def _tx(self) -> Iterator[sqlite3.Cursor]:
+        """One write transaction under the lock: committed on success, rolled back on error."""
+        with self._lock:
+            cur = self._conn.cursor()
+            try:
+                cur.execute("BEGIN IMMEDIATE")
+                yield cur
+                cur.execute("COMMIT")
+            except BaseException:
+                # Also after a failed COMMIT: a transaction left open would swallow every
+                # later autocommitted write.
+                if self._conn.in_transaction:
+                    self._conn.execute("ROLLBACK")
+                raise
+            finally:
+                cur.close()
+
+    def _one(self, sql: str, params: tuple[Any, ...]) -> int:
+        """Run one autocommitted write statement; its lastrowid."""
+        with self._lock:
+            cur = self._conn.execute(sql, params)
+            return int(cur.lastrowid or 0)
+
+    def close(self) -> None:
+        """Close the connection (idempotent); everything written is already committed."""
+        with self._lock:
+            if not self._closed:
+                self._closed = True
+                self._conn.close()
+
+    def __enter__(self) -> ResultStore:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    # ------------------------------------------------------------------ writing
+
+    def start_session(
+        self,
+        *,
+        server_session_id: int,
+        instance: str,
+        client_name: str,
+        seed: int,
+        num_rounds: int,
+        time_allowed_ms: float,
+        peer: str,
+        no_header: bool,
+        started_at: float,
+    ) -> int:
+        """Record a session that has begun (status ``open``); its row id."""
+        return self._one(
+            "INSERT INTO sessions (server_session_id, instance, client_name, seed, num_rounds,"
+            " time_allowed_ms, peer, no_header, started_at, owner)"
+            " VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
+            (
+                int(server_session_id), str(instance), str(client_name), int(seed),
+                int(num_rounds), _real(time_allowed_ms), str(peer), int(bool(no_header)),
+                _real(started_at), self.owner,
+            ),
+        )
+
+    def start_round(self, session: int, *, round_num: int, counted: bool, started_at: float) -> int:
+        """Record a round that has begun (status ``open``); its row id.
+
+        ``round_num`` is the number rddlsim puts in round-init; ``counted`` is false for a
+        practice round (``execute-policy no`` under monitor-execution).
+        """
+        return self._one(
+            "INSERT INTO rounds (session_id, round_num, counted, started_at) VALUES (?, ?, ?, ?)",
+            (int(session), int(round_num), int(bool(counted)), _real(started_at)),
+        )
+
+    def record_step(
+        self,
+        round_: int,
+        *,
+        turn_num: int,
+        state: list[tuple[str, tuple[str, ...], object]],
+        actions: list[tuple[str, tuple[str, ...], object]],
+        reward: float,
+        turn_sent_at: float,
+        actions_received_at: float,
+    ) -> None:
+        """Record one transition: the state sent in turn ``turn_num``, the actions the client
+        answered and the reward of that transition. Committed when this returns.
+
+        Raises ``sqlite3.IntegrityError`` for an unknown round or a turn recorded twice.
+        A step is accepted even if its round was already closed (by ``interrupt_open``
+        during a shutdown): it was played, so it is kept.
+        """
+        self._one(
+            "INSERT INTO steps (round_id, turn_num, state, actions, reward, turn_sent_at,"
+            " actions_received_at) VALUES (?, ?, ?, ?, ?, ?, ?)",
+            (
+                int(round_), int(turn_num), encode_fluents(state), encode_fluents(actions),
+                _real(reward), _real(turn_sent_at), _real(actions_received_at),
+            ),
+        )
+
+    def end_round(
+        self, round_: int, *, reward: float, turns_used: int, status: str, ended_at: float
+    ) -> None:
+        """Close a round with the values of its round-end.
+
+        ``status`` is one of :data:`ROUND_STATUSES`. Closing a round that is already
+        closed (a shutdown got there first) keeps the first record and logs it; an
+        unknown round raises ``KeyError``.
+        """
+        if status not in ROUND_STATUSES:
+            raise ValueError(f"round status {status!r} is not one of {sorted(ROUND_STATUSES)}")
+        with self._tx() as cur:
+            cur.execute(
+                "UPDATE rounds SET reward = ?, turns_used = ?, status = ?, ended_at = ?"
+                " WHERE id = ? AND status = 'open'",
+                (_real(reward), int(turns_used), status, _real(ended_at), int(round_)),
+            )
+            if cur.rowcount == 0:
+                self._already_closed(cur, "rounds", round_, status)
+
+    def end_session(
+        self,
+        session: int,
+        *,
+        total_reward: float | None,
+        rounds_used: int,
+        status: str,
+        reason: str | None,
+        ended_at: float,
+    ) -> None:
+        """Close a session with the values of its session-end (``total_reward`` None when no
+        session-end was sent).
+
+        ``status`` is one of :data:`SESSION_STATUSES`. Rounds of the session still open
+        are closed with the same status (their reward stays NULL, ``turns_used`` is the
+        number of recorded steps), since the caller should have ended them: that is
+        logged. Closing an already closed session keeps the first record; an unknown
+        session raises ``KeyError``.
+        """
+        if status not in SESSION_STATUSES:
+            raise ValueError(
+                f"session status {status!r} is not one of {sorted(SESSION_STATUSES)}"
+            )
+        with self._tx() as cur:
+            cur.execute(
+                "UPDATE sessions SET total_reward = ?, rounds_used = ?, status = ?, reason = ?,"
+                " ended_at = ? WHERE id = ? AND status = 'open'",
+                (_opt_real(total_reward), int(rounds_used), status, reason, _real(ended_at),
+                 int(session)),
+            )
+            if cur.rowcount == 0:
+                self._already_closed(cur, "sessions", session, status)
+                return
+            n = self._close_open_rounds(cur, "session_id = ?", (int(session),), status, ended_at)
+            if n:
+                log.warning("session %d ended (%s) with %d round(s) still open; closed them",
+                            session, status, n)
+
+    def interrupt_open(self, reason: str, ended_at: float, *, every_owner: bool = False) -> int:
+        """Mark the sessions still open, and their open rounds, as ``interrupted`` with
+        ``reason``; the number of sessions marked.
+
+        By default only the sessions this store started are touched, so a server that
+        shuts down leaves alone the live sessions of other servers writing to the same
+        file. ``every_owner=True`` closes every open session in the file, for recovery
+        after a crash when no other server is running.
+        """
+        with self._tx() as cur:
+            where, params = ("status = 'open'", ()) if every_owner else (
+                "status = 'open' AND owner = ?", (self.owner,))
+            ids = [r[0] for r in cur.execute(f"SELECT id FROM sessions WHERE {where}", params)]
+            cur.execute(
+                "UPDATE sessions SET status = 'interrupted', reason = ?, ended_at = ?"
+                f" WHERE {where}",
+                (reason, _real(ended_at), *params),
+            )
+            if every_owner:
+                self._close_open_rounds(cur, "1", (), "interrupted", ended_at)
+            else:
+                for sid in ids:
+                    self._close_open_rounds(cur, "session_id = ?", (sid,), "interrupted", ended_at)
+        if ids:
+            log.info("marked %d open session(s) as interrupted: %s", len(ids), reason)
+        return len(ids)
+
+    @staticmethod
+    def _close_open_rounds(
+        cur: sqlite3.Cursor, where: str, params: tuple[Any, ...], status: str, ended_at: float
+    ) -> int:
+        cur.execute(
+            "UPDATE rounds SET status = ?, ended_at = ?,"
+            " turns_used = (SELECT count(*) FROM steps WHERE steps.round_id = rounds.id)"
+            f" WHERE status = 'open' AND {where}",
+            (status, _real(ended_at), *params),
+        )
+        return cur.rowcount
+
+    @staticmethod
+    def _already_closed(cur: sqlite3.Cursor, table: str, row: int, status: str) -> None:
+        found = cur.execute(f"SELECT status FROM {table} WHERE id = ?", (int(row),)).fetchone()
+        if found is None:
+            raise KeyError(f"no row {row} in {table}")
+        log.info("%s row %d already closed as %r; not changed to %r", table, row, found[0], status)
+
+    # ------------------------------------------------------------------ reading
+
+    def _rows(self, sql: str, params: tuple[Any, ...] = ()) -> list[dict[str, Any]]:
+        with self._lock:
+            cur = self._conn.execute(sql, params)
+            names = [d[0] for d in cur.description]
+            return [dict(zip(names, row, strict=True)) for row in cur.fetchall()]
+
+    def sessions(self) -> list[dict[str, Any]]:
+        """Every session, oldest first, as plain dicts (``no_header`` as bool)."""
+        rows = self._rows("SELECT * FROM sessions ORDER BY id")
+        for r in rows:
+            r["no_header"] = bool(r["no_header"])
+        return rows
+
+    def session(self, session: int) -> dict[str, Any]:
+        """One session as a dict; ``KeyError`` if unknown."""
+        rows = self._rows("SELECT * FROM sessions WHERE id = ?", (int(session),))
+        if not rows:
+            raise KeyError(f"no session {session}")
+        rows[0]["no_header"] = bool(rows[0]["no_header"])
+        return rows[0]
+
+    def rounds(self, session: int) -> list[dict[str, Any]]:
+        """The rounds of a session in the order played (``counted`` as bool)."""
+        rows = self._rows("SELECT * FROM rounds WHERE session_id = ? ORDER BY id", (int(session),))
+        for r in rows:
+            r["counted"] = bool(r["counted"])
+        return rows
+
+    def steps(self, round_: int) -> list[dict[str, Any]]:
+        """The steps of a round by turn number; ``state`` and ``actions`` decoded to lists
+        of ``(name, args, value)`` tuples."""
+        rows = self._rows(
+            "SELECT * FROM steps WHERE round_id = ? ORDER BY turn_num", (int(round_),)
+        )
+        for r in rows:
+            r["state"] = decode_fluents(r["state"])
+            r["actions"] = decode_fluents(r["actions"])
+        return rows
+
+    def count_steps(self, round_: int | None = None) -> int:
+        """How many steps are stored (in one round, or in all)."""
+        with self._lock:
+            if round_ is None:
+                return int(self._conn.execute("SELECT count(*) FROM steps").fetchone()[0])
+            return int(self._conn.execute(
+                "SELECT count(*) FROM steps WHERE round_id = ?", (int(round_),)
+            ).fetchone()[0])

@@ -1,0 +1,126 @@
+"""rddl-server as a user runs it: a process, a port, signals, a database."""
+
+from __future__ import annotations
+
+import os
+import signal
+import sqlite3
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import trio
+
+from .harness import NOOP, RDDL, ROUND_REQUEST, RawClient, root_of, session_request
+
+SERVER = [sys.executable, "-c", "from ippc.server.cli import main; main()"]
+
+
+def start(*args: str) -> tuple[subprocess.Popen, int]:
+    proc = subprocess.Popen(
+        [*SERVER, str(RDDL), "--port", "0", *args],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    assert proc.stdout is not None
+    deadline = time.monotonic() + 60
+    line = ""
+    while time.monotonic() < deadline:
+        line = proc.stdout.readline()
+        if line.startswith("listening on"):
+            return proc, int(line.rsplit(":", 1)[1])
+        if proc.poll() is not None:
+            break
+    proc.kill()
+    raise AssertionError(f"no 'listening on' line: {line!r} {proc.stderr.read() if proc.stderr else ''}")
+
+
+async def play_turns(port: int, turns: int) -> int:
+    """Start a session and answer `turns` turns; returns how many steps the
+    server has answered (a turn after our action means it was recorded)."""
+    c = await RawClient.connect(port)
+    await c.send(session_request(client="victim"))
+    assert root_of(await c.recv()) == "session-init"
+    answered = 0
+    await c.send(ROUND_REQUEST)
+    assert root_of(await c.recv()) == "round-init"
+    assert root_of(await c.recv()) == "turn"
+    while answered < turns:
+        await c.send(NOOP)
+        msg = await c.recv()
+        answered += 1
+        if root_of(msg) == "round-end":
+            await c.send(ROUND_REQUEST)
+            assert root_of(await c.recv()) == "round-init"
+            assert root_of(await c.recv()) == "turn"
+    return answered
+
+
+def test_listening_line_and_bad_dir(tmp_path: Path) -> None:
+    proc, port = start("--rounds", "1")
+    try:
+        assert port > 0
+    finally:
+        proc.terminate()
+        proc.wait(10)
+    r = subprocess.run([*SERVER, str(tmp_path)], capture_output=True, text=True, timeout=60)
+    assert r.returncode != 0 and "no instance to serve" in r.stderr
+
+
+def test_kill_9_loses_no_answered_step(tmp_path: Path) -> None:
+    db = tmp_path / "results.db"
+    proc, port = start("--rounds", "30", "--db", str(db))
+    try:
+        answered = trio.run(play_turns, port, 12)
+        os.kill(proc.pid, signal.SIGKILL)
+        proc.wait(10)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    con = sqlite3.connect(db)
+    steps = con.execute("select count(*) from steps").fetchone()[0]
+    assert steps >= answered == 12
+
+
+def test_sigterm_records_open_sessions_as_interrupted(tmp_path: Path) -> None:
+    db = tmp_path / "results.db"
+    logs = tmp_path / "logs"
+    proc, port = start("--rounds", "30", "--db", str(db), "--log-dir", str(logs))
+    async def victim_then_signal() -> None:
+        c = await RawClient.connect(port)
+        await c.send(session_request(client="victim"))
+        assert root_of(await c.recv()) == "session-init"
+        await c.send(ROUND_REQUEST)
+        assert root_of(await c.recv()) == "round-init"
+        assert root_of(await c.recv()) == "turn"
+        proc.send_signal(signal.SIGTERM)  # while the session is open
+        await c.expect_eof()
+        await c.close()
+
+    try:
+        trio.run(victim_then_signal)
+        proc.wait(20)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    con = sqlite3.connect(db)
+    rows = con.execute("select status from sessions").fetchall()
+    assert rows == [("interrupted",)]
+    assert (logs / f"logs-{port}.log").read_text().startswith('<?xml version="1.0" encoding="UTF-8"?>\n<client-info>')
+
+
+def test_individual_session_exits_after_one(tmp_path: Path) -> None:
+    proc, port = start("--rounds", "1", "--individual-session")
+    try:
+        async def one() -> None:
+            from .harness import noop_session
+
+            await noop_session(port)
+
+        trio.run(one)
+        assert proc.wait(20) == 0
+    finally:
+        if proc.poll() is None:
+            proc.kill()
