@@ -17,6 +17,8 @@ from __future__ import annotations
 
 import base64
 import binascii
+import functools
+import operator
 import re
 from collections.abc import Callable
 from typing import Final
@@ -87,23 +89,77 @@ def _escape(text: str) -> str:
 
 
 def _leaf(out: list[str], tag: str, text: str) -> None:
+    if not isinstance(text, str):
+        raise LocalProtocolError(f"<{tag}> must be a str, not {type(text).__name__} {text!r}")
     # A text node, even an empty one, makes Xerces write a start and an end tag.
     out.append(f"<{tag}>{_escape(text)}</{tag}>")
 
 
+def _int(out: list[str], tag: str, value: object, *, bits: int = 32) -> None:
+    # Java peers read these with Integer.valueOf / Long.valueOf: a float ("5.0") or an
+    # out-of-range number would break them, so refuse it here rather than on their side.
+    try:
+        number = operator.index(value)  # type: ignore[arg-type]
+    except TypeError:
+        raise LocalProtocolError(
+            f"<{tag}> must be an int, not {type(value).__name__} {value!r}"
+        ) from None
+    if not -(2 ** (bits - 1)) <= number < 2 ** (bits - 1):
+        raise LocalProtocolError(f"<{tag}> {number} does not fit a {bits}-bit Java integer")
+    out.append(f"<{tag}>{number}</{tag}>")
+
+
+def _dbl(out: list[str], tag: str, value: object) -> None:
+    try:
+        if isinstance(value, str | bytes):
+            raise TypeError
+        number = float(value)  # type: ignore[arg-type]
+    except (TypeError, ValueError):
+        raise LocalProtocolError(
+            f"<{tag}> must be a number, not {type(value).__name__} {value!r}"
+        ) from None
+    out.append(f"<{tag}>{java_double(number)}</{tag}>")
+
+
+@functools.lru_cache(maxsize=1 << 16)
+def _fluent_head(kind: str, name: str, args: tuple[str, ...]) -> str:
+    # Everything of a fluent before its value: the same in every turn, so
+    # built (and checked) once per grounding.
+    wrapper = "observed-fluent" if kind == "fluent" else "action"
+    out = [f"<{wrapper}>"]
+    _leaf(out, f"{kind}-name", name)
+    for arg in args:
+        _leaf(out, f"{kind}-arg", arg)
+    out.append(f"<{kind}-value>")
+    return "".join(out)
+
+
+_FLUENT_TAIL = {"fluent": "</fluent-value></observed-fluent>", "action": "</action-value></action>"}
+
+
 def _fluent(out: list[str], kind: str, fluent: Fluent) -> None:
     # kind is "fluent" (observed-fluent) or "action" (action)
-    wrapper = "observed-fluent" if kind == "fluent" else "action"
-    out.append(f"<{wrapper}>")
-    _leaf(out, f"{kind}-name", fluent.name)
-    for arg in fluent.args:
-        _leaf(out, f"{kind}-arg", arg)
     try:
-        text = format_value(fluent.value)
-    except TypeError as exc:
-        raise LocalProtocolError(f"{wrapper} {fluent.name}: {exc}") from None
-    _leaf(out, f"{kind}-value", text)
-    out.append(f"</{wrapper}>")
+        head = _fluent_head(kind, fluent.name, fluent.args)
+    except TypeError:  # unhashable args: let _leaf say what is wrong
+        head = _fluent_head.__wrapped__(kind, fluent.name, tuple(fluent.args))
+    value = fluent.value
+    if value is True:
+        text = "true"
+    elif value is False:
+        text = "false"
+    else:
+        try:
+            text = format_value(value)
+        except TypeError as exc:
+            wrapper = "observed-fluent" if kind == "fluent" else "action"
+            raise LocalProtocolError(f"{wrapper} {fluent.name}: {exc}") from None
+        if not isinstance(text, str):
+            raise LocalProtocolError(f"{kind}-value must be a str, not {type(text).__name__}")
+        text = _escape(text)
+    out.append(head)
+    out.append(text)
+    out.append(_FLUENT_TAIL[kind])
 
 
 def _body(msg: Message) -> list[str]:
@@ -111,9 +167,9 @@ def _body(msg: Message) -> list[str]:
     out: list[str] = []
     if isinstance(msg, Turn):
         out.append("<turn>")
-        _leaf(out, "turn-num", str(msg.turn_num))
-        _leaf(out, "time-left", java_double(msg.time_left))
-        _leaf(out, "immediate-reward", java_double(msg.immediate_reward))
+        _int(out, "turn-num", msg.turn_num)
+        _dbl(out, "time-left", msg.time_left)
+        _dbl(out, "immediate-reward", msg.immediate_reward)
         if msg.fluents is None:
             out.append("<no-observed-fluents/>")
         else:
@@ -140,9 +196,9 @@ def _body(msg: Message) -> list[str]:
     elif isinstance(msg, SessionInit):
         out.append("<session-init>")
         _leaf(out, "task", base64.b64encode(msg.task).decode("ascii"))
-        _leaf(out, "session-id", str(msg.session_id))
-        _leaf(out, "num-rounds", str(msg.num_rounds))
-        _leaf(out, "time-allowed", java_double(msg.time_allowed))
+        _int(out, "session-id", msg.session_id)
+        _int(out, "num-rounds", msg.num_rounds)
+        _dbl(out, "time-allowed", msg.time_allowed)
         out.append("</session-init>")
     elif isinstance(msg, RoundRequest):
         if msg.execute_policy is None:
@@ -153,34 +209,34 @@ def _body(msg: Message) -> list[str]:
             out.append("</round-request>")
     elif isinstance(msg, RoundInit):
         out.append("<round-init>")
-        _leaf(out, "round-num", str(msg.round_num))
-        _leaf(out, "round-left", str(msg.round_left))
-        _leaf(out, "time-left", java_double(msg.time_left))
+        _int(out, "round-num", msg.round_num)
+        _int(out, "round-left", msg.round_left)
+        _dbl(out, "time-left", msg.time_left)
         out.append("</round-init>")
     elif isinstance(msg, RoundEnd):
         out.append("<round-end>")
         _leaf(out, "instance-name", msg.instance_name)
         _leaf(out, "client-name", msg.client_name)
-        _leaf(out, "round-num", str(msg.round_num))
-        _leaf(out, "round-reward", java_double(msg.round_reward))
-        _leaf(out, "turns-used", str(msg.turns_used))
-        _leaf(out, "time-left", str(msg.time_left))
-        _leaf(out, "immediate-reward", java_double(msg.immediate_reward))
+        _int(out, "round-num", msg.round_num)
+        _dbl(out, "round-reward", msg.round_reward)
+        _int(out, "turns-used", msg.turns_used)
+        _int(out, "time-left", msg.time_left, bits=64)
+        _dbl(out, "immediate-reward", msg.immediate_reward)
         out.append("</round-end>")
     elif isinstance(msg, SessionEnd):
         out.append("<session-end>")
         _leaf(out, "instance-name", msg.instance_name)
-        _leaf(out, "total-reward", java_double(msg.total_reward))
-        _leaf(out, "rounds-used", str(msg.rounds_used))
+        _dbl(out, "total-reward", msg.total_reward)
+        _int(out, "rounds-used", msg.rounds_used)
         _leaf(out, "client-name", msg.client_name)
-        _leaf(out, "session-id", str(msg.session_id))
-        _leaf(out, "time-left", str(msg.time_left))
+        _int(out, "session-id", msg.session_id)
+        _int(out, "time-left", msg.time_left, bits=64)
         out.append("</session-end>")
     elif isinstance(msg, ResourceRequest):
         out.append("<resource-request/>")
     elif isinstance(msg, ResourceNotification):
         out.append("<resource-notification>")
-        _leaf(out, "time-left", java_double(msg.time_left))
+        _dbl(out, "time-left", msg.time_left)
         _leaf(out, "memory-left", msg.memory_left)
         out.append("</resource-notification>")
     else:
@@ -192,8 +248,9 @@ def encode(msg: Message, *, declaration: bool = True) -> bytes:
     """The XML document for ``msg`` exactly as rddlsim writes it (no terminator).
 
     With ``declaration`` the document starts with :data:`XML_DECLARATION`. Raises
-    :class:`LocalProtocolError` for text XML cannot carry (control characters) or a value
-    that is not a fluent value.
+    :class:`LocalProtocolError` for text XML cannot carry (control characters), a value
+    that is not a fluent value, a non-integer or out-of-range number where Java reads an
+    int or long, or a field of the wrong type.
     """
     doc = "".join(_body(msg)).encode("ascii")
     return XML_DECLARATION + doc if declaration else doc
@@ -271,15 +328,28 @@ class _Fields:
 
 
 def _fluents(f: _Fields, wrapper: str, kind: str) -> tuple[Fluent, ...]:
+    name_tag, arg_tag, value_tag = f"{kind}-name", f"{kind}-arg", f"{kind}-value"
     out = []
     for el in f.root.iterdescendants(wrapper):
-        out.append(
-            Fluent(
-                f.text(f"{kind}-name", el),
-                f.all(f"{kind}-arg", el),
-                f.text(f"{kind}-value", el),
-            )
-        )
+        # One pass over the descendants (a turn can hold thousands of fluents) with the
+        # getElementsByTagName rules: first name, every arg, first value.
+        name: str | None = None
+        value: str | None = None
+        args = []
+        for sub in el.iterdescendants(name_tag, arg_tag, value_tag):
+            tag = sub.tag
+            if tag == arg_tag:
+                args.append(sub.text or "")
+            elif tag == name_tag:
+                if name is None:
+                    name = sub.text or ""
+            elif value is None:
+                value = sub.text or ""
+        if name is None:
+            f.text(name_tag, el)  # raises: names the missing element
+        if value is None:
+            f.text(value_tag, el)
+        out.append(Fluent(name or "", tuple(args), value or ""))
     return tuple(out)
 
 
@@ -381,6 +451,23 @@ _DECODERS: Final[dict[str, Callable[[_Fields], Message]]] = {
 }
 
 
+# The messages clients send most, exactly as they send them: decoded without
+# a parser (a noop every turn is the common case of a competition).
+_COMMON: Final[dict[bytes, Message]] = {
+    decl + body: msg
+    for decl in (b"", XML_DECLARATION)
+    for body, msg in (
+        (b"<actions/>", Actions()),
+        (b"<actions></actions>", Actions()),
+        (b"<round-request/>", RoundRequest()),
+        (b"<round-request></round-request>", RoundRequest()),
+        (b"<round-request><execute-policy>yes</execute-policy></round-request>", RoundRequest(execute_policy=True)),
+        (b"<round-request> <execute-policy>yes</execute-policy> </round-request>", RoundRequest(execute_policy=True)),
+        (b"<resource-request/>", ResourceRequest()),
+    )
+}
+
+
 def decode(data: bytes) -> Message:
     """Parse one message (declaration optional, no terminator).
 
@@ -390,6 +477,9 @@ def decode(data: bytes) -> Message:
     unparsable number in a server message.
     """
     data = bytes(data)
+    fast = _COMMON.get(data)
+    if fast is not None:
+        return fast
     if len(data) > MAX_MESSAGE_SIZE:
         raise RemoteProtocolError(
             f"message of {len(data)} bytes exceeds the {MAX_MESSAGE_SIZE}-byte limit",

@@ -103,6 +103,10 @@ def java_double(x: float) -> str:
         return "Infinity" if x > 0 else "-Infinity"
     if x == 0.0:
         return "-0.0" if math.copysign(1.0, x) < 0 else "0.0"
+    if 1e-3 <= abs(x) < 1e7:
+        # Here Python's repr is plain notation with the same shortest digits
+        # (a one-digit value cannot have a closer two-digit neighbour at 53 bits).
+        return repr(x)
     sign = "-" if x < 0 else ""
     digits, sci = _shortest_digits(x)
     if 1e-3 <= abs(x) < 1e7:
