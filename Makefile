@@ -25,13 +25,24 @@ test: install
 test-fast: install
 	$(BIN)/python -m pytest -q -m 'not slow'
 
-# For now: check the bundled domains and show one formatted back.
+# The main job: rddl-server on the bundled print-fetching domain, and
+# rddl-client playing a session against it with noop and with random.
 demo: install
-	$(BIN)/rddl check domains/
-	$(BIN)/rddl fmt domains/print_fetch/domain.rddl | head -40
+	@set -e; out=$$(mktemp); \
+	$(BIN)/rddl-server domains/print_fetch --port 0 --rounds 3 -q > $$out & pid=$$!; \
+	trap 'kill $$pid 2>/dev/null; rm -f $$out' EXIT; \
+	for i in $$(seq 300); do grep -q '^listening on' $$out && break; sleep 0.1; done; \
+	port=$$(sed -n 's/^listening on .*://p' $$out); \
+	test -n "$$port" || { echo "rddl-server did not start"; exit 1; }; \
+	echo "rddl-server listening on 127.0.0.1:$$port"; \
+	for planner in noop random; do \
+		$(BIN)/rddl-client --port $$port --instance print_fetch_inst_1 --planner $$planner --seed 1 -q; \
+	done
 
 bench: install
 	$(BIN)/python bench/parse.py
+	$(BIN)/python bench/sim.py
+	$(BIN)/python bench/server.py
 
 lint: install
 	$(BIN)/ruff check .

@@ -10,7 +10,7 @@ from pathlib import Path
 import click
 import trio
 
-from ..planners.base import ExternalPlanner, PlannerError, make_planner, planner_names
+from ..planners.base import ExternalPlanner, PlannerError, find_planner, make_planner
 from .session import ClientConfig, ClientError, SessionResult, run_session
 
 
@@ -59,14 +59,21 @@ def main(
     robot's dispatcher) with a planner, and print the round rewards."""
     logging.basicConfig(level=logging.WARNING if quiet else logging.INFO, format="%(levelname)s %(name)s: %(message)s", stream=sys.stderr)
     options = _options(planner_options)
-    if seed is not None and planner != "prost":
+    try:
+        declared = find_planner(planner).options
+    except PlannerError as err:
+        raise click.ClickException(str(err)) from None
+    if prost_bin is not None and "binary" not in declared:
+        raise click.BadParameter(f"only for --planner prost (not {planner})", param_hint="--prost")
+    # --seed and --prost are shortcuts for the planner options of those names
+    if seed is not None and "seed" in declared:
         options.setdefault("seed", str(seed))
     if prost_bin is not None:
         options.setdefault("binary", str(prost_bin))
     try:
         agent = make_planner(planner, options)
     except PlannerError as err:
-        raise click.ClickException(f"{err} (planners: {', '.join(planner_names())})") from None
+        raise click.ClickException(str(err)) from None
     name = client_name or planner
 
     if isinstance(agent, ExternalPlanner):

@@ -108,6 +108,8 @@ class _Link:
         self.stream = stream
         self.conn = conn
         self.timeout = timeout
+        self.pending = 0  # bytes received since the last complete message
+        self.conn_no_header = bool(getattr(conn, "no_header", False))
 
     async def send(self, msg: Any) -> None:
         try:
@@ -122,6 +124,7 @@ class _Link:
             except ProtocolError as err:
                 raise ClientError(f"bad message from the server while waiting for {waiting_for}: {err}") from None
             if event is not NEED_DATA:
+                self.pending = 0
                 if isinstance(event, ConnectionClosed):
                     raise ClientError(f"the server closed the connection while we waited for {waiting_for}")
                 return event
@@ -132,9 +135,19 @@ class _Link:
                 else:
                     data = await self.stream.receive_some(65536)
             except trio.TooSlowError:
-                raise ClientError(f"no answer from the server for {self.timeout:g} s while waiting for {waiting_for}") from None
+                hint = ""
+                if self.pending and not self.conn_no_header:
+                    hint = (
+                        f"; the server sent {self.pending} bytes but no complete NUL-terminated "
+                        "message (rddlsim keeps no-header mode for every client once one asked "
+                        "for it): try --no-header"
+                    )
+                raise ClientError(
+                    f"no answer from the server for {self.timeout:g} s while waiting for {waiting_for}{hint}"
+                ) from None
             except (trio.BrokenResourceError, trio.ClosedResourceError, OSError) as err:
                 raise ClientError(f"connection lost while waiting for {waiting_for}: {err}") from None
+            self.pending += len(data)
             self.conn.receive_data(data)
 
 
@@ -183,6 +196,7 @@ async def run_session(config: ClientConfig, planner: Planner, planner_name: str 
         horizon = model.horizon or 0
         plan = [True] * config.rounds_training + [False] * init.num_rounds
         total: float | None = None
+        counted = 0
         for index, training in enumerate(plan):
             await link.send(RoundRequest(execute_policy=not training))
             event = await link.receive("round-init")
@@ -191,6 +205,17 @@ async def run_session(config: ClientConfig, planner: Planner, planner_name: str 
                 break
             if not isinstance(event, RoundInit):
                 raise ClientError(f"expected round-init, got {type(event).__name__}")
+            if training and event.round_num != counted:
+                # Only a server in monitor-execution mode plays practice rounds (their
+                # round-num repeats the last counted one); anywhere else it counts.
+                log.warning(
+                    "round-init %d: the server counts this round although we asked for "
+                    "training (is it in monitor-execution mode?)",
+                    event.round_num,
+                )
+                training = False
+            if not training:
+                counted += 1
             rounds_left = len(plan) - index
             rnd = await _play_round(link, planner, codec, event, training, horizon, rounds_left, started, allowed_s)
             result.rounds.append(rnd)
@@ -235,9 +260,12 @@ async def _play_round(
         # our own clock and the server's: whichever says less
         own_left = allowed_s - (time.monotonic() - started)
         time_left = min(own_left, event.time_left / 1000.0)
-        # PROST's uniform time manager: what is left, spread over the steps left in the session
+        # PROST's uniform time manager: what is left, spread over the steps left in
+        # the session, less a reserve for the messages and the server's own steps
+        # (a planner that uses all its time must not push the session past its budget).
         steps_in_session = steps_left + max(0, rounds_left - 1) * max(horizon, 1)
-        deadline = time.monotonic() + max(0.0, time_left) / steps_in_session
+        reserve = max(0.05, 0.02 * allowed_s)
+        deadline = time.monotonic() + max(0.0, time_left - reserve) / steps_in_session
         fluents = None
         state = None
         if event.fluents is not None:

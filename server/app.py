@@ -45,13 +45,16 @@ def open_services(config: ServerConfig, registry: Registry, port: int) -> Servic
     return Services(config, registry, store=store, rddlsim_log=rlog, transcripts=transcripts)
 
 
-def close_services(services: Services, reason: str) -> None:
+def close_services(services: Services, reason: str, close: bool = True) -> None:
+    """Record sessions still open as interrupted; with `close`, close the
+    store and the log (services passed in by a caller stay open)."""
     if services.store is not None:
         n = services.store.interrupt_open(reason, time.time())
         if n:
             log.warning("%d open session(s) recorded as interrupted: %s", n, reason)
-        services.store.close()
-    if services.rddlsim_log is not None:
+        if close:
+            services.store.close()
+    if services.rddlsim_log is not None and close:
         services.rddlsim_log.close()
 
 
@@ -72,6 +75,7 @@ async def serve(
     """
     listeners = await trio.open_tcp_listeners(config.port, host=config.host)
     port = listeners[0].socket.getsockname()[1]
+    owned = services is None
     svc = services or open_services(config, registry, port)
     reason = "server stopped"
     try:
@@ -108,13 +112,13 @@ async def serve(
                 nursery.start_soon(accept_loop, listener)
             task_status.started(port)
     finally:
-        close_services(svc, reason)
+        close_services(svc, reason, close=owned)
     return svc
 
 
 async def _watch_signals(scope: trio.CancelScope) -> None:
     with trio.open_signal_receiver(signal.SIGINT, signal.SIGTERM) as signals:
         async for signum in signals:
-            log.warning("signal %s: shutting down; open sessions are recorded as interrupted", signal.Signals(signum).name)
+            log.info("signal %s: shutting down", signal.Signals(signum).name)
             scope.cancel()
             return

@@ -328,13 +328,13 @@ class Session:
             session_id=self.id,
             time_left=self._ms(),
         )
-        await self.channel.send(end)
-        self._log_document(encode(end))
         status = "timeout" if out_of_time else "finished"
         self.status = status
         if svc.store is not None and self.db_id is not None:
             svc.store.end_session(self.db_id, total_reward=self.total_reward, rounds_used=counted, status=status, reason=None, ended_at=time.time())
             self.db_id = None
+        await self.channel.send(end)
+        self._log_document(encode(end))
         log.info("%s ended: total reward %s over %d rounds (%s)", self.describe(), self.total_reward, counted, status)
 
     def _log_document(self, doc: bytes) -> None:
@@ -413,11 +413,12 @@ class Session:
             time_left=self._ms(),
             immediate_reward=rnd.immediate,
         )
-        await self.channel.send(end)
-        self._log_document(encode(end))
+        # recorded before the client hears of it, like every step
         if store is not None and self.round_db_id is not None:
             store.end_round(self.round_db_id, reward=rnd.reward, turns_used=rnd.turns, status=rnd.status, ended_at=time.time())
             self.round_db_id = None
+        await self.channel.send(end)
+        self._log_document(encode(end))
         return out_of_time
 
     def _decode_actions(self, codec: WireCodec, actions: Actions) -> Any:
