@@ -70,27 +70,63 @@ class Raw:
             self.buf += data
 
 
-async def one_session(port: int, name: str, hold: trio.Event | None = None) -> int:
-    """A whole noop session; returns the turns played."""
+async def one_session(port: int, name: str, hold: trio.Event | None = None, canned: dict[str, bytes] | None = None) -> int:
+    """A whole noop session; returns the turns played (and, with `canned`,
+    keeps one server message of each kind)."""
     stream = await trio.open_tcp_stream("127.0.0.1", port)
     turns = 0
     async with stream:
         c = Raw(stream)
         await stream.send_all(session_request(name))
         init = await c.recv()
+        if canned is not None:
+            canned["session-init"] = init
         m = re.search(rb"<num-rounds>(\d+)</num-rounds>", init)
         assert m, init[:200]
         for _ in range(int(m.group(1))):
             await stream.send_all(DECL + b"<round-request/>\0")
-            await c.recv()  # round-init
+            rinit = await c.recv()
             while b"<round-end>" not in (msg := await c.recv()):
+                if canned is not None:
+                    canned.setdefault("turn", msg)
                 turns += 1
                 if hold is not None:
                     await hold.wait()
                     hold = None
                 await stream.send_all(DECL + b"<actions/>\0")
-        assert b"<session-end>" in await c.recv()
+            if canned is not None:
+                canned["round-init"], canned["round-end"] = rinit, msg
+        end = await c.recv()
+        assert b"<session-end>" in end
+        if canned is not None:
+            canned["session-end"] = end
     return turns
+
+
+# --------------------------------------------------- the transport's floor
+
+
+async def echo_server(canned_file: str) -> None:
+    """Answers like rddl-server with canned bytes (no XML, no simulation):
+    what trio and the kernel cost per turn, the floor under any Python server."""
+    canned = {k: bytes.fromhex(v) + b"\0" for k, v in json.loads(Path(canned_file).read_text()).items()}
+    rounds = int(re.search(rb"<num-rounds>(\d+)<", canned["session-init"]).group(1))  # type: ignore[union-attr]
+
+    async def handler(stream: trio.SocketStream) -> None:
+        c = Raw(stream)
+        await c.recv()
+        await stream.send_all(canned["session-init"])
+        for _ in range(rounds):
+            await c.recv()
+            await stream.send_all(canned["round-init"] + canned["turn"])
+            for h in range(40):
+                await c.recv()
+                await stream.send_all(canned["turn"] if h < 39 else canned["round-end"])
+        await stream.send_all(canned["session-end"])
+
+    listeners = await trio.open_tcp_listeners(0, host="127.0.0.1")
+    print(f"listening on 127.0.0.1:{listeners[0].socket.getsockname()[1]}", flush=True)
+    await trio.serve_listeners(handler, listeners)
 
 
 async def run_clients(port: int, n: int) -> tuple[int, float]:
@@ -187,24 +223,46 @@ def main() -> None:
     ap.add_argument("--memory-sessions", type=int, default=50)
     ap.add_argument("--rddlsim-classpath", default=os.environ.get("RDDLSIM_CP"))
     ap.add_argument("--json", action="store_true")
+    ap.add_argument("--echo-server", metavar="CANNED", help=argparse.SUPPRESS)
     args = ap.parse_args()
+    if args.echo_server:
+        trio.run(echo_server, args.echo_server)
+        return
     if not BENCH_RDDL.is_dir():
         raise SystemExit(f"missing {BENCH_RDDL} (the shared folder beside the checkout)")
 
     rows = []
     proc, port = start_ours(args.rounds)
+    canned: dict[str, bytes] = {}
     try:
-        trio.run(run_clients, port, 1)  # warm-up: compile the instance, JIT-free but caches warm
+        trio.run(one_session, port, "warm-up", None, canned)  # compiles the instance, keeps samples
+        # memory first, before the load runs leave freed memory for reuse
+        mem = trio.run(memory_per_session, port, proc.pid, args.memory_sessions)
         for n in args.clients:
             cpu0 = cpu_seconds(proc.pid)
             turns, secs = trio.run(run_clients, port, n)
             cpu = cpu_seconds(proc.pid) - cpu0
             rows.append({"server": "ippc", "clients": n, "turns": turns, "seconds": secs, "turns_per_s": turns / secs,
                          "server_cpu_us_per_turn": 1e6 * cpu / turns})
-        mem = trio.run(memory_per_session, port, proc.pid, args.memory_sessions)
     finally:
         proc.terminate()
         proc.wait(10)
+
+    # the same client against canned replies: the floor of the transport
+    canned_file = Path(os.environ.get("TMPDIR", "/tmp")) / f"ippc-bench-canned-{os.getpid()}.json"
+    canned_file.write_text(json.dumps({k: v.hex() for k, v in canned.items()}))
+    eproc = subprocess.Popen([sys.executable, __file__, "--echo-server", str(canned_file)], stdout=subprocess.PIPE, text=True)
+    try:
+        assert eproc.stdout is not None
+        eport = int(eproc.stdout.readline().rsplit(":", 1)[1])
+        trio.run(run_clients, eport, 1)
+        turns, secs = trio.run(run_clients, eport, 1)
+        floor = turns / secs
+        rows.append({"server": "canned", "clients": 1, "turns": turns, "seconds": secs, "turns_per_s": floor})
+    finally:
+        eproc.kill()
+        eproc.wait(10)
+        canned_file.unlink(missing_ok=True)
 
     ref_one: float | None = None
     if args.rddlsim_classpath:
@@ -223,6 +281,7 @@ def main() -> None:
         print(json.dumps({"rows": rows, "memory_kb_per_session": mem, "rddlsim_same_run": ref_one}, indent=2))
         return
     print(f"workload: {INSTANCE}, {args.rounds} rounds x horizon 40 per session, noop raw client, loopback")
+    print("canned = a server that answers with fixed bytes (no XML, no simulation): the floor")
     print(f"{'server':8} {'clients':>7} {'turns':>8} {'seconds':>8} {'turns/s':>9} {'cpu us/turn':>11}  ratio to rddlsim (1 client)")
     for r in rows:
         if ref_one:
@@ -235,8 +294,11 @@ def main() -> None:
     ours = [r for r in rows if r["server"] == "ippc"]
     if len(ours) > 1:
         trend = " >= ".join(f"{r['turns_per_s']:.0f}" for r in ours)
-        holds = all(b["turns_per_s"] >= 0.9 * a["turns_per_s"] for a, b in zip(ours, ours[1:]))
+        holds = all(b["turns_per_s"] >= 0.9 * a["turns_per_s"] for a, b in zip(ours, ours[1:], strict=False))
         print(f"aggregate as clients are added: {trend}  ({'holds' if holds else 'FALLS'}, 10% noise allowed)")
+    one = next(r for r in ours if r["clients"] == 1)
+    print(f"one client: {one['turns_per_s'] / floor:.2f} of the canned-reply floor ({floor:.0f} turns/s: "
+          "trio + kernel + this client, no XML, no simulation)")
     print(f"memory per open session: {mem:.0f} KiB ({args.memory_sessions} sessions held at their first turn)")
 
 

@@ -123,6 +123,9 @@ class WireCodec:
         self._state = [self._layout(p) for p in rddlsim_order(model, STATE)]
         self._observ = [self._layout(p) for p in rddlsim_order(model, OBSERV)]
         self._by_name = {p.name: p for p in model.pvariables.values()}
+        self._noop1 = sim.noop(1)
+        for a in self._noop1.values():
+            a.flags.writeable = False  # shared by every noop turn
 
     def _layout(self, p: PVariable) -> _Layout:
         members = [self.model.types[t].members for t in p.params]
@@ -245,10 +248,14 @@ class WireCodec:
         toward max-nondef-actions when its value is not the default; a
         state fluent sent as an action with a non-default value makes the
         actions illegal."""
+        fluents = list(fluents)
+        if not fluents:
+            return DecodedActions(self._noop1, 0, (), (), 0)
         arrays = self.sim.noop(1)
         extra = 0
         ignored: list[str] = []
         illegal: list[str] = []
+        changed: dict[tuple[str, tuple[int, ...]], bool] = {}
         for name, args, value in fluents:
             args = tuple(args)
             p = self._by_name.get(name)
@@ -270,7 +277,9 @@ class WireCodec:
                     extra += 1
                 continue
             arrays[name][(0, *idx)] = code
-        return DecodedActions(arrays, extra, tuple(ignored), tuple(illegal))
+            changed[(name, idx)] = code != default  # the last value sent for a grounding wins
+        nondefault = sum(changed.values()) + extra
+        return DecodedActions(arrays, extra, tuple(ignored), tuple(illegal), nondefault)
 
     def check(self, state: State, decoded: DecodedActions) -> str | None:
         """Why the actions are illegal in `state` (max-nondef-actions,
@@ -279,9 +288,11 @@ class WireCodec:
             return decoded.illegal[0]
         limit = self.model.max_nondef_actions
         if limit is not None:
-            n = int(self.sim.count_nondefault(decoded.arrays, 1)[0]) + decoded.extra_nondefault
+            n = decoded.nondefault
             if n > limit:
                 return f"{n} actions differ from their default, max-nondef-actions is {limit}"
+        if not self.sim._preconditions:
+            return None
         try:
             self.sim._check_preconditions(self.sim._env(state, decoded.arrays, None), decoded.arrays, 1)
         except SimulationError as err:
@@ -297,3 +308,4 @@ class DecodedActions:
     extra_nondefault: int  # groundings without effect that still count
     ignored: tuple[str, ...]  # what was received but has no effect
     illegal: tuple[str, ...]  # why the actions cannot be simulated at all
+    nondefault: int = 0  # groundings that differ from their default, as max-nondef-actions counts

@@ -37,6 +37,8 @@ class Instance:
     model: Model
     task: bytes
     _compiled: tuple[Simulator, WireCodec] | None = field(default=None, repr=False)
+    # wire fluent -> protocol Fluent, shared by the sessions (values repeat)
+    fluents: dict[tuple[object, ...], object] = field(default_factory=dict, repr=False)
     _lock: trio.Lock | None = field(default=None, repr=False)
 
     @property
