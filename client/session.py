@@ -264,7 +264,7 @@ async def _play_round(
         # the session, less a reserve for the messages and the server's own steps
         # (a planner that uses all its time must not push the session past its budget).
         steps_in_session = steps_left + max(0, rounds_left - 1) * max(horizon, 1)
-        reserve = max(0.05, 0.02 * allowed_s)
+        reserve = max(0.1, 0.02 * allowed_s)
         deadline = time.monotonic() + max(0.0, time_left - reserve) / steps_in_session
         fluents = None
         state = None

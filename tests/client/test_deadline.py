@@ -127,8 +127,8 @@ async def test_deadlines_of_a_planner_that_answers_at_once() -> None:
         # an even share of what is left, over the steps left in the session
         # (the budget minus what the session has used so far)
         assert s.offered <= ALLOWED / (total - i) + 1e-6
-        # (less the client's reserve for messages: max(0.05 s, 2% of the budget))
-        reserve = max(0.05, 0.02 * ALLOWED)
+        # (less the client's reserve for messages: max(0.1 s, 2% of the budget))
+        reserve = max(0.1, 0.02 * ALLOWED)
         assert s.offered >= (ALLOWED - elapsed - reserve) / (total - i) - SLACK, s
     # unused time is offered again: the offers grow, the last turn gets
     # nearly the whole budget, and their sum exceeds the budget
