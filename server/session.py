@@ -238,6 +238,7 @@ class Session:
         finally:
             svc.open_sessions.pop(self.id, None)
             if self.channel.transcript is not None:
+                self.channel._write("eof", "s2c", conn=self.id, t=self.channel._t())  # we close
                 self.channel.transcript.close()
             try:
                 await self.stream.aclose()
