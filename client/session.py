@@ -226,9 +226,9 @@ async def run_session(config: ClientConfig, planner: Planner, planner_name: str 
                 raise ClientError(f"expected session-end, got {type(event).__name__}")
             total = event.total_reward
         planner.end_session(total)
-        counted = [r.reward for r in result.rounds if not r.training]
+        scored = [r.reward for r in result.rounds if not r.training]
         result.total_reward = total
-        result.mean_round_reward = statistics.fmean(counted) if counted else 0.0
+        result.mean_round_reward = statistics.fmean(scored) if scored else 0.0
         result.seconds = time.monotonic() - started
         return result
 

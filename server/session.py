@@ -103,9 +103,9 @@ class _Channel:
         """From now on record to `transcript`, starting with what came
         before it existed (the session-request)."""
         self.transcript = transcript
-        for kind, args, kwargs in self._early:
+        for kind, args, kwargs in self._early or ():
             getattr(transcript, kind)(*args, **kwargs)
-        self._early.clear()
+        self._early = []
 
     def _write(self, kind: str, *args: Any, **kwargs: Any) -> None:
         if self.transcript is not None:
@@ -113,7 +113,7 @@ class _Channel:
         elif self._early is not None and len(self._early) < 16:
             self._early.append((kind, args, kwargs))
 
-    def _record_inbound(self, data: bytes) -> None:
+    def _record_inbound(self, data: bytes | bytearray) -> None:
         if self._early is None:
             return
         try:
