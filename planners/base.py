@@ -48,6 +48,8 @@ BUILTIN_PLANNERS: dict[str, str] = {
     "noop": "ippc.planners.basic:NoopPlanner",
     "random": "ippc.planners.basic:RandomPlanner",
     "prost": "ippc.planners.prost:ProstPlanner",
+    "mcts": "ippc.planners.mcts:MCTSPlanner",
+    "replan": "ippc.planners.replan:ReplanPlanner",
 }
 
 

@@ -1,0 +1,793 @@
+"""Determinise-and-replan: the deterministic baseline planner (`replan`).
+
+In the spirit of FF-Replan and the Metric-FF baseline of ROSPlan's RDDL
+paper: plan on a deterministic version of the model, execute the plan, and
+plan again when the world does not do what the plan predicted.
+
+Theory of operation.
+
+* Determinisation (`planners/determinise.py`). At the start of a session
+  the model is rewritten into its *most-likely* determinisation (every
+  random draw replaced by its most likely outcome: ``Bernoulli(p)`` by
+  ``p >= 0.5``, ``Discrete`` by its most likely value, ``Normal`` by its
+  mean, ...) and a second `Simulator` is compiled from it. With
+  ``determinisation=all-outcomes`` the search may also choose the outcome
+  of an action, as if the outcome were part of the action (see below).
+
+* Search. From the current state, a best-first search over joint actions
+  in the determinised simulator maximises the (discounted) reward over the
+  next `depth` steps (the steps left in the round, or `max_depth`). Every
+  node is a complete plan: the actions that lead to it, then noop until
+  the depth; its value `q` is the reward of that whole plan, exactly (the
+  model is deterministic), computed with a noop roll-out of the
+  determinised simulator. The search expands the node of highest `q` (ties:
+  the shallower, then the older), so it starts from "do nothing" and keeps
+  improving on the best plan it knows; the best plan so far is always a
+  valid answer, which makes the search anytime: it stops at the turn's
+  deadline and returns the best plan found. A state reached again at the
+  same depth with no more reward is pruned. Termination (pyRDDLGym's
+  `termination`, rddlsim's `terminate-when`) ends a branch: a goal is
+  reached there and no reward follows, so in a goal domain (a cost every
+  step until the goal) the search looks for the shortest way there.
+
+* Batches. The children of a node (its legal joint actions) are one batched
+  simulator step, and `expand` nodes are expanded together in one step;
+  the roll-outs of all the children are batched too, and a roll-out row
+  stops as soon as noop leaves its state unchanged (a fixed point: the
+  model is deterministic and stationary, so the rest is that step's reward
+  again), which in most domains happens within a few steps.
+
+* Legal actions only. The candidate joint actions are enumerated once per
+  session (noop, then every set of 1, 2, ... non-default action groundings
+  up to max-nondef-actions, for as long as there are at most `max_actions`
+  of them); each expansion keeps the ones that `Simulator.check_actions`
+  finds legal in the node's state (max-nondef-actions, action
+  preconditions, state-action constraints). Boolean actions are flipped;
+  an enum action tries every other value; int and real actions try their
+  default +- 1 (a coarse discretisation: this planner is for boolean and
+  enum action spaces first). When the enumeration stops short of
+  max-nondef-actions, each expansion adds one random legal joint action
+  (`Simulator.random_actions`) per node.
+
+* Replanning. The plan predicts the state of every turn. Each turn the
+  observed state is compared with the prediction (exactly for bool, int and
+  enum fluents, within 1e-6 relative for reals); a difference is a
+  *surprise*: the planner counts a replan (`replans`) and searches from the
+  observed state. Otherwise it executes the next step of the plan without
+  searching, except that when the last search was cut short by the deadline
+  (the plan may not be the best one) it uses the turn's time to search
+  again from the current state and keeps the old plan unless it finds a
+  better one (`refinements`; option `refine`). A plan that runs out (when
+  `max_depth` is below the steps left) is followed by a new search.
+
+* all-outcomes. FF-Replan's all-outcomes determinisation turns every
+  outcome of every action into an action of its own, so the planner picks
+  the outcome it likes. In a factored RDDL model every grounding of every
+  draw is a separate choice, so the outcomes of one joint action are all
+  the combinations of them (2^n for n Bernoulli draws): too many to list.
+  This planner's all-outcomes mode lets the search pick among the most
+  likely outcome and `outcomes` outcomes sampled from the real model, each
+  a child of its own; the roll-outs behind them stay most-likely. For a
+  reward-maximising search this is optimism: the search follows the
+  luckiest outcome it has seen (the computer that reboots by itself, the
+  passenger who arrives just when the elevator is there), plans that rely
+  on luck look best, and they fail more often, so the planner replans
+  more. It is there to compare with; most-likely is the default.
+
+* POMDPs. The planner does not see the state, so it plans from the state
+  its own plan predicts (the initial state in the first turn) and never
+  notices a surprise: open-loop plans, new ones when a plan runs out.
+
+Counters (attributes, over the planner's life): `searches`, `replans`,
+`refinements`, `expansions`, `planning_seconds`; `last_search` is the
+`SearchResult` of the last search. The totals of each round and session
+are logged at info level.
+"""
+
+from __future__ import annotations
+
+import heapq
+import itertools
+import logging
+import math
+import time
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import ClassVar
+
+import numpy as np
+
+from ..rddl.simulator import SimulationError, Simulator, State
+from ..rddl.wire import WireCodec
+from .base import Observation, Planner, PlannerError, SessionInfo, WireFluent
+from .determinise import determinise
+
+log = logging.getLogger(__name__)
+
+Array = np.ndarray
+Actions = dict[str, Array]
+
+DETERMINISATIONS = ("most-likely", "all-outcomes")
+DEFAULT_DEPTH_NO_HORIZON = 40  # plan length when the instance has no horizon
+DEFAULT_MAX_ACTIONS = 1000
+DEFAULT_EXPAND = 8
+DEFAULT_OUTCOMES = 4
+MAX_NODES = 200_000  # bound on the search tree's size
+MAX_STATE_BYTES = 200_000_000  # bound on the memory the tree's states take
+_WORST = -1e300  # value of a plan whose reward is not a number
+
+
+# ------------------------------------------------------------ states
+
+
+def concat_states(states: list[State]) -> State:
+    """The states of several batches, one after the other."""
+    if len(states) == 1:
+        return states[0]
+    return State({k: np.concatenate([s.values[k] for s in states]) for k in states[0].values})
+
+
+def state_keys(state: State) -> list[bytes]:
+    """A hashable key per state of the batch (its values' bytes)."""
+    batch = state.batch
+    parts = [
+        np.ascontiguousarray(v).reshape(batch, -1).view(np.uint8)
+        for _, v in sorted(state.values.items())
+    ]
+    if not parts:
+        return [b""] * batch
+    flat = np.concatenate(parts, axis=1) if len(parts) > 1 else parts[0]
+    return [row.tobytes() for row in flat]
+
+
+def same_state(a: State, b: State, index: int = 0) -> bool:
+    """Whether state `index` of `a` equals state 0 of `b` (reals within
+    1e-6 relative: they went through the wire as text)."""
+    for name, x in b.values.items():
+        y = a.values.get(name)
+        if y is None:
+            return False
+        y = y[index]
+        x = x[0]
+        if np.issubdtype(x.dtype, np.floating):
+            if not np.allclose(x, y, rtol=1e-6, atol=1e-9, equal_nan=True):
+                return False
+        elif not np.array_equal(x, y):
+            return False
+    return True
+
+
+def _gather(states: list[State], rows: list[int]) -> State:
+    """State `rows[i]` of `states[i]`, for every i, as one batch."""
+    return State(
+        {
+            k: np.concatenate([s.values[k][r : r + 1] for s, r in zip(states, rows, strict=True)])
+            for k in states[0].values
+        }
+    )
+
+
+def _take(actions: Mapping[str, Array], rows: Array | list[int]) -> Actions:
+    return {k: v[rows] for k, v in actions.items()}
+
+
+def _concat_actions(parts: list[Actions]) -> Actions:
+    if len(parts) == 1:
+        return parts[0]
+    return {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
+
+
+# ------------------------------------------------------------ actions
+
+
+def joint_actions(sim: Simulator, limit: int) -> tuple[Actions, bool]:
+    """Candidate joint actions, stacked along the batch axis (noop first),
+    and whether the list stops short of max-nondef-actions.
+
+    Every set of 1, 2, ... non-default action groundings, up to
+    max-nondef-actions, for as long as the total stays within `limit`
+    (a size that would pass the limit is left out as a whole). Booleans are
+    flipped; an enum grounding takes each other value; int and real ones
+    their default +- 1. Legality in a state is checked later."""
+    model = sim.model
+    noop = sim.noop(1)
+    options: list[tuple[str, tuple[int, ...], object]] = []
+    grounding_of: list[int] = []
+    groundings = 0
+    for p in sim.action_fluents:
+        default = noop[p.name][0]
+        for idx in np.ndindex(default.shape):
+            d = default[idx].item()
+            if p.range == "bool":
+                values: list[object] = [not d]
+            elif p.range in model.types:
+                values = [c for c in range(len(model.types[p.range].members)) if c != d]
+            elif p.range == "int":
+                values = [d - 1, d + 1]
+            else:
+                values = [d - 1.0, d + 1.0]
+            for v in values:
+                options.append((p.name, idx, v))
+                grounding_of.append(groundings)
+            groundings += 1
+    limit_k = (
+        groundings
+        if model.max_nondef_actions is None
+        else min(model.max_nondef_actions, groundings)
+    )
+    combos: list[tuple[int, ...]] = [()]
+    truncated = False
+    for k in range(1, limit_k + 1):
+        level: list[tuple[int, ...]] = []
+        for combo in itertools.combinations(range(len(options)), k):
+            if len({grounding_of[i] for i in combo}) < k:
+                continue  # two values for one grounding
+            level.append(combo)
+            if len(combos) + len(level) > limit:
+                break
+        if len(combos) + len(level) > limit:
+            truncated = True
+            break
+        combos.extend(level)
+    actions = sim.noop(len(combos))
+    for row, combo in enumerate(combos):
+        for i in combo:
+            name, idx, value = options[i]
+            actions[name][(row, *idx)] = value
+    return actions, truncated
+
+
+# ------------------------------------------------------------ plans
+
+
+@dataclass(frozen=True)
+class PlanStep:
+    """One step of a plan: the joint action (batch-1 arrays), the state it
+    is predicted to lead to (batch 1) and the predicted reward."""
+
+    actions: Actions
+    state: State
+    reward: float
+
+
+@dataclass(frozen=True)
+class SearchResult:
+    """What one search found."""
+
+    steps: list[PlanStep]  # the plan, `depth` steps (fewer when a goal ends it)
+    value: float  # its predicted (discounted) reward
+    complete: bool  # the search ran out of nodes (not cut by deadline or size)
+    expansions: int  # nodes expanded
+    nodes: int  # nodes generated
+    depth: int
+    seconds: float
+    kept_incumbent: bool = False  # the plan given to refine was still the best
+
+
+@dataclass
+class SearchProblem:
+    """What a search works with, built once per session."""
+
+    sim: Simulator  # the determinised model
+    world: Simulator  # the real model: sampled outcomes (all-outcomes), random actions
+    candidates: Actions  # joint actions, stacked (noop first)
+    truncated: bool  # the candidates stop short of max-nondef-actions
+    discount: float
+    rng: np.random.Generator
+    outcomes: int = 0  # sampled outcomes per action (all-outcomes); 0: most-likely only
+    expand: int = DEFAULT_EXPAND
+    max_nodes: int = MAX_NODES
+
+    @property
+    def n_candidates(self) -> int:
+        return int(next(iter(self.candidates.values())).shape[0]) if self.candidates else 1
+
+
+def unchanged(a: State, b: State) -> Array:
+    """A (batch,) mask of the rows where `a` and `b` hold the same state."""
+    same = np.ones(a.batch, dtype=bool)
+    for name, x in a.values.items():
+        y = b.values[name]
+        same &= (x == y).reshape(a.batch, -1).all(axis=1)
+    return same
+
+
+def continuation(
+    sim: Simulator,
+    state: State,
+    lengths: Array,
+    start: Array,
+    discount: float,
+    rng: np.random.Generator | None,
+) -> Array:
+    """The discounted reward of doing nothing for `lengths[i]` steps from
+    state i (whose first step has weight discount**start[i]); a termination
+    ends the sum.
+
+    The model is deterministic and stationary, so a state that noop leaves
+    as it is stays so, with the same reward every step: such a row is
+    summed up at once and leaves the batch (in many domains the noop
+    trajectory settles after a few steps), as does a row that has
+    terminated or run its length."""
+    total = np.zeros(state.batch)
+    rows = np.nonzero(np.asarray(lengths) > 0)[0]
+    left = np.asarray(lengths, dtype=np.int64)[rows]
+    first = np.asarray(start, dtype=np.float64)[rows]
+    if len(rows) < state.batch:
+        state = state[rows]
+    t = 0
+    while len(rows):
+        out = sim.step(state, None, rng, check=False)  # type: ignore[arg-type]
+        reward = np.asarray(out.reward, dtype=np.float64)
+        weight = discount ** (first + t) if discount != 1.0 else 1.0
+        total[rows] += weight * reward
+        left -= 1
+        done = np.asarray(out.done, dtype=bool)
+        fixed = ~done & (left > 0) & unchanged(state, out.next_state)
+        if fixed.any():
+            if discount == 1.0:
+                total[rows[fixed]] += reward[fixed] * left[fixed]
+            else:
+                w = discount ** (first[fixed] + t + 1)
+                total[rows[fixed]] += (
+                    reward[fixed] * w * (1.0 - discount ** left[fixed]) / (1.0 - discount)
+                )
+        alive = ~done & (left > 0) & ~fixed
+        t += 1
+        state = out.next_state
+        if not alive.all():
+            keep = np.nonzero(alive)[0]
+            rows, left, first = rows[keep], left[keep], first[keep]
+            if len(rows):
+                state = state[keep]
+    return total
+
+
+def _noop_steps(
+    sim: Simulator,
+    state: State,
+    steps: int,
+    first: int,
+    discount: float,
+    rng: np.random.Generator | None,
+) -> tuple[list[PlanStep], float]:
+    """`steps` noop steps from `state` (batch 1) as plan steps, and their
+    discounted reward; stops at a termination."""
+    out_steps: list[PlanStep] = []
+    total = 0.0
+    noop = sim.noop(1)
+    t = 0
+    while t < steps:
+        out = sim.step(state, None, rng, check=False)  # type: ignore[arg-type]
+        r = float(out.reward[0])
+        total += discount ** (first + t) * r
+        out_steps.append(PlanStep(noop, out.next_state, r))
+        t += 1
+        if bool(out.done[0]):
+            break
+        if bool(unchanged(state, out.next_state)[0]):
+            # a fixed point of noop: the same step again until the end
+            while t < steps:
+                total += discount ** (first + t) * r
+                out_steps.append(out_steps[-1])
+                t += 1
+            break
+        state = out.next_state
+    return out_steps, total
+
+
+def search(
+    problem: SearchProblem,
+    root: State,
+    depth: int,
+    deadline: float,
+    incumbent: list[PlanStep] | None = None,
+) -> SearchResult:
+    """Best-first search for the plan of highest reward over `depth` steps
+    from `root` (batch 1) in the determinised simulator, until the
+    deadline (a `time.monotonic()` value) or the end of the tree.
+
+    `incumbent`: a plan to keep unless a better one is found (refining a
+    plan that still holds)."""
+    t0 = time.monotonic()
+    sim, gamma, rng = problem.sim, problem.discount, problem.rng
+    depth = max(1, depth)
+    # node tables (parallel lists); node 0 is the root
+    batches: list[tuple[State, Actions, Array]] = [(root, sim.noop(1), np.zeros(1))]
+    where: list[tuple[int, int]] = [(0, 0)]
+    parent = [-1]
+    level = [0]
+    g = [0.0]
+    term = [False]  # a termination holds in the node's state
+    root_key = state_keys(root)[0]
+    keys = [root_key]
+    root_q = float(continuation(sim, root, np.array([depth]), np.array([0]), gamma, rng)[0])
+    q = [root_q if math.isfinite(root_q) else _WORST]
+    seen: dict[tuple[int, bytes], float] = {(0, root_key): 0.0}
+    # every node keeps its state twice (the batch and the key): bound the memory too
+    max_nodes = min(problem.max_nodes, max(1000, MAX_STATE_BYTES // max(1, 2 * len(root_key))))
+    noop_legal = bool(problem.world.check_actions(root, sim.noop(1))[0])
+    best = 0 if noop_legal else -1
+    best_q = q[0] if noop_legal else -math.inf
+    heap: list[tuple[float, int, int]] = [(-q[0], 0, 0)]
+    expansions = 0
+    per_round = 0.0  # the slowest expansion round so far
+    n_cand = problem.n_candidates
+    cut = False
+    while heap:
+        now = time.monotonic()
+        if expansions and now + 2.0 * per_round > deadline:
+            cut = True
+            break
+        if len(parent) >= max_nodes:
+            cut = True
+            break
+        started = now
+        chosen: list[int] = []
+        while heap and len(chosen) < problem.expand:
+            _, _, node = heapq.heappop(heap)
+            if seen[(level[node], keys[node])] > g[node]:
+                continue  # its state was reached again with more reward: a better node
+            chosen.append(node)
+        if not chosen:
+            continue
+        parents = _gather([batches[where[n][0]][0] for n in chosen], [where[n][1] for n in chosen])
+        m = len(chosen)
+        # every candidate in every chosen node, the legal ones kept
+        states = parents[np.repeat(np.arange(m), n_cand)]
+        acts = {k: np.tile(v, (m,) + (1,) * (v.ndim - 1)) for k, v in problem.candidates.items()}
+        owner = np.repeat(np.arange(m), n_cand)
+        legal = np.asarray(sim.check_actions(states, acts), dtype=bool)
+        rows = np.nonzero(legal)[0]
+        states, acts, owner = states[rows], _take(acts, rows), owner[rows]
+        if problem.truncated:
+            try:
+                extra = problem.world.random_actions(parents, rng)
+            except SimulationError:
+                extra = None
+            if extra is not None:
+                states = concat_states([states, parents])
+                acts = _concat_actions([acts, extra])
+                owner = np.concatenate([owner, np.arange(m)])
+        expansions += m
+        if states.batch == 0:
+            per_round = max(per_round, time.monotonic() - started)
+            continue
+        out = sim.step(states, acts, rng, check=False)
+        nexts, rewards, dones = (
+            [out.next_state],
+            [np.asarray(out.reward, dtype=np.float64)],
+            [out.done],
+        )
+        kid_acts, kid_owner = [acts], [owner]
+        if problem.outcomes > 0:
+            rep = np.tile(np.arange(states.batch), problem.outcomes)
+            sampled = problem.world.step(states[rep], _take(acts, rep), rng, check=False)
+            nexts.append(sampled.next_state)
+            rewards.append(np.asarray(sampled.reward, dtype=np.float64))
+            dones.append(sampled.done)
+            kid_acts.append(_take(acts, rep))
+            kid_owner.append(owner[rep])
+        nxt = concat_states(nexts)
+        reward = np.concatenate(rewards)
+        done = np.concatenate(dones).astype(bool)
+        kacts = _concat_actions(kid_acts)
+        kowner = np.concatenate(kid_owner)
+        par = np.array(chosen)[kowner]
+        dpar = np.array([level[p] for p in par])
+        gpar = np.array([g[p] for p in par])
+        gkid = gpar + (gamma**dpar if gamma != 1.0 else 1.0) * reward
+        gkid = np.where(np.isfinite(gkid), gkid, _WORST)
+        # keep a child only if its state is new at its depth, or reached
+        # with more reward than before
+        keep: list[int] = []
+        kid_keys = state_keys(nxt)
+        for i, key in enumerate(kid_keys):
+            k = (int(dpar[i]) + 1, key)
+            old = seen.get(k)
+            if old is None or gkid[i] > old:
+                seen[k] = float(gkid[i])
+                keep.append(i)
+        if keep:
+            rows = np.array(keep)
+            kept = nxt[rows]
+            kdepth = dpar[rows] + 1
+            lengths = np.where(done[rows], 0, depth - kdepth)
+            h = continuation(sim, kept, lengths, kdepth, gamma, rng)
+            qk = gkid[rows] + h
+            qk = np.where(np.isfinite(qk), qk, _WORST)
+            b = len(batches)
+            batches.append((kept, _take(kacts, rows), reward[rows]))
+            for j, i in enumerate(keep):
+                node = len(parent)
+                where.append((b, j))
+                parent.append(int(par[i]))
+                level.append(int(kdepth[j]))
+                g.append(float(gkid[i]))
+                term.append(bool(done[i]))
+                keys.append(kid_keys[i])
+                q.append(float(qk[j]))
+                if q[node] > best_q:
+                    best, best_q = node, q[node]
+                if kdepth[j] < depth and not done[i]:
+                    heapq.heappush(heap, (-q[node], int(kdepth[j]), node))
+        per_round = max(per_round, time.monotonic() - started)
+    complete = not cut and not problem.truncated and problem.outcomes == 0
+    # the plan: the path to the best node, then noop to the depth
+    steps: list[PlanStep] = []
+    if best >= 0:
+        path = []
+        node = best
+        while node > 0:
+            path.append(node)
+            node = parent[node]
+        for node in reversed(path):
+            b, row = where[node]
+            st, ac, rw = batches[b]
+            steps.append(PlanStep(_take(ac, [row]), st[[row]], float(rw[row])))
+        b, row = where[best]
+        if not term[best]:
+            last = batches[b][0][[row]]
+            more, _ = _noop_steps(sim, last, depth - level[best], level[best], gamma, rng)
+            steps.extend(more)
+    value = best_q
+    kept_incumbent = False
+    if incumbent:
+        inc_steps, inc_value = _incumbent(sim, incumbent, depth, gamma, rng)
+        if not steps or inc_value >= value - 1e-9 * max(1.0, abs(value)):
+            steps, value, kept_incumbent = inc_steps, inc_value, True
+    return SearchResult(
+        steps=steps,
+        value=value,
+        complete=complete,
+        expansions=expansions,
+        nodes=len(parent),
+        depth=depth,
+        seconds=time.monotonic() - t0,
+        kept_incumbent=kept_incumbent,
+    )
+
+
+def _incumbent(
+    sim: Simulator, plan: list[PlanStep], depth: int, gamma: float, rng: np.random.Generator | None
+) -> tuple[list[PlanStep], float]:
+    """A plan kept from the last search, cut or extended (with noop) to
+    `depth` steps, and its predicted reward from now."""
+    steps = list(plan[:depth])
+    value = sum(gamma**t * s.reward for t, s in enumerate(steps))
+    if len(steps) < depth and len(steps) == len(plan):
+        more, extra = _noop_steps(sim, steps[-1].state, depth - len(steps), len(steps), gamma, rng)
+        steps.extend(more)
+        value += extra
+    return steps, value
+
+
+# ------------------------------------------------------------ the planner
+
+
+class ReplanPlanner(Planner):
+    """Determinise, plan with a best-first search over the determinised
+    simulator, execute, replan on surprise (see the module's docstring)."""
+
+    name: ClassVar[str] = "replan"
+    options: ClassVar[dict[str, str]] = {
+        "determinisation": "most-likely (default: each random draw takes its most likely outcome) "
+        "or all-outcomes (the search may also pick among sampled outcomes of each action, "
+        "optimistically)",
+        "time_per_step": "seconds of search per turn at most (default: the turn's deadline, "
+        "the session's time left spread over the steps left)",
+        "max_depth": "plan length and lookahead in steps (default: the steps left in the round; "
+        f"{DEFAULT_DEPTH_NO_HORIZON} when the instance has no horizon)",
+        "expand": f"nodes expanded together in one batched simulator step (default {DEFAULT_EXPAND})",
+        "outcomes": "all-outcomes: outcomes sampled per action besides the most likely one "
+        f"(default {DEFAULT_OUTCOMES})",
+        "max_actions": "most candidate joint actions per state (default "
+        f"{DEFAULT_MAX_ACTIONS}); beyond it the largest sets are left out and one random legal "
+        "joint action per node is tried instead",
+        "refine": "while the plan holds, search again from the current state when the last "
+        "search was cut short by the deadline, keeping the plan unless a better one turns up "
+        "(default true)",
+        "seed": "integer seed for sampled outcomes and random actions (default: the client's "
+        "--seed, else unseeded)",
+    }
+
+    def __init__(self, **options: str) -> None:
+        super().__init__(**options)
+        mode = (self.str_option("determinisation", "most-likely") or "most-likely").strip().lower()
+        if mode not in DETERMINISATIONS:
+            raise self._option_error("determinisation", mode, " or ".join(DETERMINISATIONS))
+        self.determinisation = mode
+        self.time_per_step = self.float_option("time_per_step", None, minimum=0.0)
+        self.max_depth = self.int_option("max_depth", None, minimum=1)
+        self.expand = self.int_option("expand", DEFAULT_EXPAND, minimum=1) or DEFAULT_EXPAND
+        outcomes = self.int_option("outcomes", DEFAULT_OUTCOMES, minimum=1)
+        self.outcomes = (outcomes or DEFAULT_OUTCOMES) if mode == "all-outcomes" else 0
+        self.max_actions = (
+            self.int_option("max_actions", DEFAULT_MAX_ACTIONS, minimum=1) or DEFAULT_MAX_ACTIONS
+        )
+        self.refine = self.bool_option("refine", True)
+        self.seed = self.int_option("seed")
+        # counters over the planner's life
+        self.searches = 0
+        self.replans = 0
+        self.refinements = 0
+        self.expansions = 0
+        self.planning_seconds = 0.0
+        self.last_search: SearchResult | None = None
+        self.problem: SearchProblem | None = None
+        self._codec: WireCodec | None = None
+        self._plan: list[PlanStep] = []
+        self._plan_complete = True
+        self._expected: State | None = None
+        self._round = (0, 0, 0, 0.0)  # counters at the start of the round
+
+    # -- session -----------------------------------------------------
+
+    def start_session(self, session: SessionInfo) -> None:
+        super().start_session(session)
+        t0 = time.monotonic()
+        world = session.simulator
+        try:
+            det = Simulator(determinise(session.model))
+        except SimulationError as err:
+            raise PlannerError(f"replan: cannot simulate the determinised model: {err}") from err
+        candidates, truncated = joint_actions(world, self.max_actions)
+        seed = self.seed if self.seed is not None else session.seed
+        self.problem = SearchProblem(
+            sim=det,
+            world=world,
+            candidates=candidates,
+            truncated=truncated,
+            discount=session.model.discount,
+            rng=np.random.default_rng(seed),
+            outcomes=self.outcomes,
+            expand=self.expand,
+        )
+        self._codec = WireCodec(world)
+        log.info(
+            "replan: %s, %s determinisation, %d candidate joint actions%s, built in %.3f s",
+            session.instance,
+            self.determinisation,
+            self.problem.n_candidates,
+            " (truncated: plus random ones)" if truncated else "",
+            time.monotonic() - t0,
+        )
+
+    def start_round(self, round_num: int) -> None:
+        self._plan = []
+        self._plan_complete = True
+        self._expected = None
+        self._round = (self.searches, self.replans, self.refinements, self.planning_seconds)
+
+    def end_round(self, reward: float) -> None:
+        s, r, f, t = self._round
+        log.info(
+            "replan: round reward %s; %d searches, %d replans, %d refinements, %.3f s planning",
+            reward,
+            self.searches - s,
+            self.replans - r,
+            self.refinements - f,
+            self.planning_seconds - t,
+        )
+
+    def end_session(self, total_reward: float) -> None:
+        log.info(
+            "replan: session reward %s; %d searches, %d replans, %d refinements, %d expansions, "
+            "%.3f s planning",
+            total_reward,
+            self.searches,
+            self.replans,
+            self.refinements,
+            self.expansions,
+            self.planning_seconds,
+        )
+
+    # -- turns -------------------------------------------------------
+
+    def _depth(self, obs: Observation) -> int:
+        assert self.session is not None
+        if self.session.model.horizon is None:
+            return self.max_depth or DEFAULT_DEPTH_NO_HORIZON
+        steps = max(1, obs.steps_left)
+        return min(steps, self.max_depth) if self.max_depth else steps
+
+    def _search(
+        self,
+        state: State,
+        obs: Observation,
+        deadline: float,
+        incumbent: list[PlanStep] | None,
+        why: str,
+    ) -> None:
+        assert self.problem is not None
+        result = search(self.problem, state, self._depth(obs), deadline, incumbent)
+        self.searches += 1
+        self.expansions += result.expansions
+        self.planning_seconds += result.seconds
+        self.last_search = result
+        self._plan = list(result.steps)
+        self._plan_complete = result.complete or (result.kept_incumbent and self._plan_complete)
+        log.debug(
+            "replan: turn %d (%s): %d expansions, %d nodes, depth %d, value %.4g%s%s, %.3f s",
+            obs.turn,
+            why,
+            result.expansions,
+            result.nodes,
+            result.depth,
+            result.value,
+            ", complete" if result.complete else "",
+            ", plan kept" if result.kept_incumbent else "",
+            result.seconds,
+        )
+
+    def act(self, obs: Observation) -> list[WireFluent]:
+        if self.session is None or self.problem is None or self._codec is None:
+            raise PlannerError("replan: act() called before start_session()")
+        now = time.monotonic()
+        deadline = obs.deadline
+        if self.time_per_step is not None:
+            deadline = min(deadline, now + self.time_per_step)
+        world = self.problem.world
+        if obs.state is not None:
+            state = obs.state
+        elif self._expected is not None:
+            state = self._expected  # POMDP: what the plan predicted
+        else:
+            state = world.initial_state(1)
+        why = None
+        incumbent = None
+        if (
+            obs.state is not None
+            and self._expected is not None
+            and not same_state(obs.state, self._expected)
+        ):
+            self.replans += 1
+            self._plan = []
+            why = "surprise"
+            log.debug("replan: turn %d: the state is not the predicted one", obs.turn)
+        elif not self._plan:
+            why = "start" if self._expected is None else "plan ended"
+        elif self.refine and not self._plan_complete:
+            why = "refine"
+            incumbent = self._plan
+        if why is not None and now < deadline:
+            if why == "refine":
+                self.refinements += 1
+            self._search(state, obs, deadline, incumbent, why)
+        chosen = self._next_legal(state, obs, deadline)
+        if chosen is None:
+            self._expected = None
+            return []
+        return self._codec.actions(chosen, 0)
+
+    def _next_legal(self, state: State, obs: Observation, deadline: float) -> Actions | None:
+        """The plan's next joint action if it is legal in `state` (else a
+        new search, else noop or the first legal candidate); sets the
+        prediction for the next turn."""
+        assert self.problem is not None
+        world = self.problem.world
+        if self._plan:
+            step = self._plan.pop(0)
+            if bool(world.check_actions(state, step.actions)[0]):
+                self._expected = step.state
+                return step.actions
+            # a noop continuation can be illegal where the domain demands an action
+            log.debug("replan: turn %d: the plan's action is not legal here; searching", obs.turn)
+            if time.monotonic() < deadline:
+                self._search(state, obs, deadline, None, "illegal plan step")
+                if self._plan:
+                    step = self._plan.pop(0)
+                    if bool(world.check_actions(state, step.actions)[0]):
+                        self._expected = step.state
+                        return step.actions
+        self._plan = []
+        noop = world.noop(1)
+        if bool(world.check_actions(state, noop)[0]):
+            return None
+        cands = self.problem.candidates
+        n = self.problem.n_candidates
+        legal = np.nonzero(world.check_actions(state[[0] * n], cands))[0]
+        if len(legal):
+            return _take(cands, [int(legal[0])])
+        log.warning("replan: turn %d: no legal joint action found; sending noop", obs.turn)
+        return None
