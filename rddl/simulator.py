@@ -1,17 +1,52 @@
 """A vectorised RDDL simulator: `Model` -> numpy.
 
-Theory of operation. Every pvariable is a tensor with a leading batch axis
-and one axis per parameter (sized by its type's members), so a whole batch
+Theory of operation. Every pvariable is a tensor with one axis per
+parameter (sized by its type's members) and a batch axis, so a whole batch
 of states is stepped at once. Enum and object values are integer codes
-(their index in the range type's members). Each expression is compiled once
-into a closure over numpy operations; an expression is compiled in a *scope*
-(the typed variables free at that point, e.g. a cpf's parameters plus those
-of enclosing aggregations), and its closure returns an array of rank
-1 + len(scope): axis 0 is the batch, axis 1 + i the i-th scope variable;
-any axis may have size 1 where the value does not depend on it, and numpy
-broadcasting does the rest. Aggregations evaluate their body in a wider
-scope and reduce the extra axes. No Python loop runs over groundings at
-step time.
+(their index in the range type's members). Arrays go in and out batch
+first, shaped (batch, *params); inside a step they are batch *last*,
+(*params, batch), and the arrays a step returns are batch-first views of
+batch-last memory: numpy's loops then run along the batch, which is what
+makes large batches fast (reductions over a relation's small axes,
+gathers of neighbours, are row operations).
+
+The compiler turns the transition, and separately the action constraints,
+into the source of one Python function of numpy operations, `exec`ed once:
+a step is one call, with no Python loop over groundings and no walk of the
+expression tree. An expression is compiled in a *scope* (the typed
+variables free at that point: a cpf's parameters, then those of enclosing
+aggregations), and its value is an array of rank len(scope) + 1: axis i the
+i-th scope variable, the last axis the batch; any axis may have size 1
+where the value does not depend on it, and broadcasting does the rest.
+While it writes the function the compiler knows every value's shape and
+dtype (it runs each operation once on stand-ins), and
+
+* folds every subexpression that reads only non-fluents and constants into
+  a constant, computed once when the simulator is built (a condition that
+  is the same everywhere picks its branch);
+* compiles an expression that does not draw in the smallest scope its
+  variables need, and computes an expression that occurs twice once;
+* turns `sum` and `exists` over a product or conjunction with a constant
+  factor (CONNECTED(?y, ?x), NEIGHBOR(...)) into a matrix product, or a few
+  row gathers where the relation pairs each value with few others; sums a
+  variable that one factor alone depends on in that factor first; splits a
+  sum of a sum or difference into two sums;
+* checks a distribution's parameters when the simulator is built where they
+  are constants, not at all where elementwise bounds carried through the
+  arithmetic prove them valid, and otherwise with one comparison per
+  parameter over the whole array.
+
+The step is compiled for small batches (fewest numpy calls) and, on the
+first large batch, again for large ones (least memory traffic: contiguous
+layouts, gathers instead of products, logical operations instead of
+np.where, results written in place, temporaries freed early). Both make
+the same draws in the same order and compute the same values.
+
+Random draws are made in the order of the expression tree (left to right,
+inner first), one independent draw per batch element and per grounding of
+every variable in scope, whatever the parameters depend on, each drawn
+batch first as (batch, *scope) in C order; nothing that draws is ever
+folded, shared or skipped, so the same seed gives the same trajectory.
 
 Semantics follow rddlsim: interm and derived fluents in level order (then
 declaration order), then next-state cpfs, then observations (which may read
@@ -27,8 +62,14 @@ the next state. `termination` (pyRDDLGym) ends an episode when it holds.
 
 from __future__ import annotations
 
+import contextlib
+import dataclasses
+import functools
 import itertools
-from collections.abc import Callable, Iterable, Mapping
+import logging
+import re
+import threading
+from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -37,8 +78,9 @@ import numpy as np
 from . import ast as A
 from .model import ACTION, DERIVED, INTERM, NON_FLUENT, OBSERV, STATE, Model, PVariable, Value
 
+log = logging.getLogger(__name__)
+
 Array = np.ndarray
-Fn = Callable[["_Env"], Array]
 
 
 class SimulationError(Exception):
@@ -94,12 +136,15 @@ class Step:
 
 
 class _Env:
-    """Values visible to compiled expressions during one step."""
+    """A state and actions, as `_check_preconditions` takes them."""
 
-    __slots__ = ("values", "rng", "batch")
+    __slots__ = ("state", "actions", "rng", "batch")
 
-    def __init__(self, values: dict[str, Array], rng: np.random.Generator | None, batch: int):
-        self.values = values
+    def __init__(
+        self, state: State, actions: Mapping[str, Array], rng: np.random.Generator | None, batch: int
+    ):
+        self.state = state
+        self.actions = actions
         self.rng = rng
         self.batch = batch
 
@@ -115,10 +160,325 @@ def _int_enum_value(name: str) -> int | None:
         return None
 
 
+# ------------------------------------------------------ generated code
+
+
+@dataclass(eq=False)
+class _Node:
+    """A value in the function being written: the Python expression that
+    names it there, and what is known about it when the simulator is built."""
+
+    code: str
+    shape: tuple[int, ...]  # the batch axis (last) has size 1 here; B at run time when `batched`
+    dtype: np.dtype[Any]
+    rtype: str  # 'bool', 'int', 'real', or an enum or object type
+    batched: bool  # depends on the state, the actions or a draw
+    value: Array | None = None  # known when the simulator is built
+    owner: str | None = None  # the temporary whose memory it is, if this call allocated it
+    bounds: tuple[Array, Array] | None = None  # elementwise, every value lies within
+
+
+class _Code:
+    """The source of one generated function: its statements (in nested
+    blocks), the inputs it reads, and the values computed so far in each
+    open block (for reuse)."""
+
+    def __init__(self, name: str, params: str, large: bool = False):
+        self.name = name
+        self.params = params
+        self.large = large
+        self.inputs: dict[str, str] = {}  # local name -> expression reading it
+        self.lines: list[str] = []
+        self.depth = 1
+        self.memo: list[dict[Any, _Node]] = [{}]
+        self.count = 0
+        self.draws: list[str] = []  # where each draw is, in order
+        # each temporary's shape, dtype and owner (for writing in place)
+        self.meta: dict[str, tuple[tuple[int, ...], np.dtype[Any], str | None, bool]] = {}
+
+    def temp(self) -> str:
+        self.count += 1
+        return f"t{self.count}"
+
+    def emit(self, line: str) -> None:
+        self.lines.append("    " * self.depth + line)
+
+    def lookup(self, key: Any) -> _Node | None:
+        for table in reversed(self.memo):
+            hit = table.get(key)
+            if hit is not None:
+                return hit
+        return None
+
+    def store(self, key: Any, node: _Node) -> None:
+        self.memo[-1][key] = node
+
+    @contextlib.contextmanager
+    def block(self, header: str) -> Iterator[None]:
+        """Statements under `header` (an `if ...:`); what they compute is
+        not reused after the block."""
+        self.emit(header)
+        start = len(self.lines)
+        self.depth += 1
+        self.memo.append({})
+        try:
+            yield
+        finally:
+            if len(self.lines) == start:
+                self.emit("pass")
+            self.memo.pop()
+            self.depth -= 1
+
+    def source(self) -> str:
+        head = [f"def {self.name}({self.params}):"]
+        head += [f"    {k} = {v}" for k, v in self.inputs.items()]
+        if self.draws:
+            head.append("    if rng is None:")
+            head.append(f"        _no_rng({self.draws[0]!r})")
+        body = _free_dead(_in_place(self.lines, self.meta)) if self.large else self.lines
+        return "\n".join(head + body) + "\n"
+
+
+_TEMP = re.compile(r"\bt\d+\b")
+_ASSIGN = re.compile(r"\s*(t\d+) = ")
+_BINARY = re.compile(r"(\s*)(t\d+) = (_add|_sub|_mul|_div|_minimum|_maximum|_land|_lor)\((\w+), (\w+)\)$")
+
+
+def _in_place(lines: list[str], meta: dict[str, tuple[tuple[int, ...], np.dtype[Any], str | None, bool]]) -> list[str]:
+    """`lines` with binary operations written into an argument's memory
+    where that argument is a temporary this function allocated, of the
+    result's shape and type, not read afterwards (nor any view of it):
+    fewer allocations, and memory that is still in cache."""
+    last: dict[str, int] = {}
+    for i, line in enumerate(lines):
+        for name in _TEMP.findall(line):
+            last[name] = i
+    # the last line where any view of each buffer is read
+    buffer_last: dict[str, int] = {}
+    for name, (_, _, owner, _) in meta.items():
+        if owner is not None and name in last:
+            buffer_last[owner] = max(buffer_last.get(owner, -1), last[name])
+    out = list(lines)
+    for i, line in enumerate(lines):
+        m = _BINARY.match(line)
+        if m is None or m.group(2) not in meta:
+            continue
+        shape, dtype, _, batched = meta[m.group(2)]
+        for arg in (m.group(4), m.group(5)):
+            info = meta.get(arg)
+            if info is None or not batched:
+                continue
+            a_shape, a_dtype, a_owner, a_batched = info
+            if a_owner == arg and a_batched and a_shape == shape and a_dtype == dtype and buffer_last.get(arg) == i:
+                # (from here on the buffer is the result's, and only its)
+                out[i] = f"{m.group(1)}{m.group(2)} = {m.group(3)}({m.group(4)}, {m.group(5)}, out={arg})"
+                break
+    return out
+
+
+def _free_dead(lines: list[str]) -> list[str]:
+    """`lines` with `del` statements for temporaries after their last use:
+    memory is then reused within the step instead of growing (and being
+    handed back to the system) every step, which costs page faults at
+    large batches."""
+    depth = [(len(line) - len(line.lstrip())) // 4 for line in lines]
+    defined: dict[str, tuple[int, int]] = {}
+    last: dict[str, int] = {}
+    for i, line in enumerate(lines):
+        for name in _TEMP.findall(line):
+            last[name] = i
+        m = _ASSIGN.match(line)
+        if m and m.group(1) not in defined:
+            defined[m.group(1)] = (i, depth[i])
+    frees: dict[int, dict[int, list[str]]] = {}
+    for name, (_, level) in defined.items():
+        p = last[name] + 1
+        while p < len(lines) and depth[p] > level:
+            p += 1
+        if p < len(lines):
+            frees.setdefault(p, {}).setdefault(level, []).append(name)
+    out: list[str] = []
+    for i, line in enumerate(lines):
+        for level, names in sorted(frees.get(i, {}).items(), reverse=True):
+            out.append("    " * level + "del " + ", ".join(names))
+        out.append(line)
+    return out
+
+
+_DTYPES = {"bool": np.bool_, "int": np.int64, "real": np.float64}
+_DTYPE_CODE = {np.dtype(np.bool_): "_bool", np.dtype(np.int64): "_i64", np.dtype(np.float64): "_f64"}
+
+
+@functools.lru_cache(maxsize=4096)
+def _compiled(text: str) -> Any:
+    """`text` (a Python expression) compiled, for `eval` (the compiler
+    evaluates the same few templates many times)."""
+    return compile(text, "<rddl expression>", "eval")
+
+
+def _tuple_code(items: Iterable[str]) -> str:
+    items = list(items)
+    return "(" + ", ".join(items) + ("," if len(items) == 1 else "") + ")"
+
+
+def _shape_code(shape: tuple[int, ...]) -> str:
+    """`(B, 3, 4)`: a batch of arrays shaped `shape`."""
+    return _tuple_code(["B", *map(str, shape)])
+
+
+def _axis_code(axes: tuple[int, ...]) -> str:
+    """An `axis=` argument: an int for one axis (numpy takes it faster)."""
+    return str(axes[0]) if len(axes) == 1 else str(axes)
+
+
+def _index_code(keep: list[bool]) -> str:
+    """`[:, None, :]`: insert an axis where `keep` is False (before the batch axis)."""
+    return "[" + ", ".join([*(":" if k else "None" for k in keep), ":"]) + "]"
+
+
+def _last_shape_code(shape: tuple[int, ...]) -> str:
+    """`(3, 4, B)`: a batch of arrays shaped `shape`, batch axis last."""
+    return _tuple_code([*map(str, shape), "B"])
+
+
+def _batch_last(rank: int) -> str:
+    """Code that views an array of this rank with its first axis moved last."""
+    if rank <= 1:
+        return ""
+    if rank == 2:
+        return ".T"
+    return f".transpose({(*range(1, rank), 0)})"
+
+
+def _batch_first(rank: int) -> str:
+    """Code that views an array of this rank with its last axis moved first."""
+    if rank <= 1:
+        return ""
+    if rank == 2:
+        return ".T"
+    return f".transpose({(rank - 1, *range(rank - 1))})"
+
+
+def _is_draw(e: A.Expr) -> bool:
+    if isinstance(e, (A.Discrete, A.DiscreteOver, A.VectorDistribution)):
+        return True
+    return isinstance(e, A.Distribution) and e.name not in ("KronDelta", "DiracDelta")
+
+
 # ---------------------------------------------------------- compiler
 
 
+def _bidx_factory() -> Callable[[int, int], Array]:
+    cache: dict[tuple[int, int], Array] = {}
+
+    def bidx(batch: int, rank: int) -> Array:
+        """Batch indices shaped to broadcast against rank-`rank` indices."""
+        arr = cache.get((batch, rank))
+        if arr is None:
+            if len(cache) > 64:
+                cache.clear()
+            arr = np.arange(batch).reshape((1,) * (rank - 1) + (-1,))
+            arr.flags.writeable = False
+            cache[(batch, rank)] = arr
+        return arr
+
+    return bidx
+
+
+# multiply-adds per BLAS call, at most: OpenBLAS runs a smaller product on
+# one thread (its threshold is 4 * 65536); a threaded one stalls badly on a
+# busy machine, and these products are small anyway
+_BLAS_BLOCK = 200_000
+
+
+def _matmul_cols(k: Array, f: Array) -> Array:
+    """`k @ f` (2-D, or stacks of matrices), computed in blocks of columns
+    of `f` small enough for one thread each."""
+    cols = f.shape[-1]
+    per_col = k.size
+    if per_col * cols <= _BLAS_BLOCK or cols < 2:
+        return np.matmul(k, f)  # type: ignore[no-any-return]
+    out = np.empty((*f.shape[:-2], k.shape[-2], cols), dtype=np.result_type(k, f))
+    step = max(1, _BLAS_BLOCK // per_col)
+    for i in range(0, cols, step):
+        np.matmul(k, f[..., i : i + step], out=out[..., i : i + step])
+    return out
+
+
+def _pad_zero_row(x: Array) -> Array:
+    """`x` with a row of zeros added below."""
+    out = np.empty((x.shape[0] + 1, *x.shape[1:]), dtype=x.dtype)
+    out[:-1] = x
+    out[-1] = 0
+    return out
+
+
+def _no_rng(where: str) -> None:
+    raise SimulationError(f"{where}: a random draw needs a numpy Generator (rng)")
+
+
+# names the generated code uses (globals of every generated function)
+_BUILTINS: dict[str, Any] = {
+    "np": np,
+    "_bool": np.bool_,
+    "_i64": np.int64,
+    "_f64": np.float64,
+    "_f32": np.float32,
+    "_cnz": np.count_nonzero,
+    "_land": np.logical_and,
+    "_lor": np.logical_or,
+    "_lnot": np.logical_not,
+    "_bitand": np.bitwise_and,
+    "_bitor": np.bitwise_or,
+    "_u8": np.uint8,
+    "_contiguous": np.ascontiguousarray,
+    "_pad_zero_row": _pad_zero_row,
+    "_eq": np.equal,
+    "_ne": np.not_equal,
+    "_lt": np.less,
+    "_le": np.less_equal,
+    "_gt": np.greater,
+    "_ge": np.greater_equal,
+    "_add": np.add,
+    "_sub": np.subtract,
+    "_mul": np.multiply,
+    "_div": np.true_divide,
+    "_neg": np.negative,
+    "_where": np.where,
+    "_select": np.select,
+    "_minimum": np.minimum,
+    "_maximum": np.maximum,
+    "_fmod": np.fmod,
+    "_abs": np.abs,
+    "_sign": np.sign,
+    "_trunc": np.trunc,
+    "_sqrt": np.sqrt,
+    "_log": np.log,
+    "_power": np.power,
+    "_hypot": np.hypot,
+    "_matmul": np.matmul,
+    "_matmul_cols": _matmul_cols,
+    "_empty": np.empty,
+    "_zeros": np.zeros,
+    "_searchsorted": np.searchsorted,
+    "_broadcast_to": np.broadcast_to,
+    "_no_rng": _no_rng,
+}
+
+_UNARY_FUNCTIONS = {
+    "exp": "np.exp", "ln": "np.log", "sqrt": "np.sqrt", "cos": "np.cos", "sin": "np.sin",
+    "tan": "np.tan", "acos": "np.arccos", "asin": "np.arcsin", "atan": "np.arctan",
+    "cosh": "np.cosh", "sinh": "np.sinh", "tanh": "np.tanh",
+}  # fmt: skip
+
+_COMPARISONS = {"<": "_lt", "<=": "_le", ">": "_gt", ">=": "_ge", "^": "_land", "|": "_lor"}
+
+
 class _Compiler:
+    """Writes the generated functions of one model (see the module's
+    docstring); `begin` starts a function, `compile` adds an expression's
+    statements to it and returns its value."""
+
     def __init__(self, model: Model):
         self.model = model
         self.sizes = {t: len(info.members) for t, info in model.types.items()}
@@ -140,6 +500,20 @@ class _Compiler:
                 ints = [_int_enum_value(m) for m in info.members]
                 if all(v is not None for v in ints):
                     self.numeric_of_code[t] = np.array(ints, dtype=np.int64)
+        self.ns: dict[str, Any] = dict(_BUILTINS)
+        self.ns["_bidx"] = _bidx_factory()
+        self._consts: dict[Any, _Node] = {}
+        self._aux_count = 0
+        self._tables: dict[str, str] = {}
+        self._random: dict[int, tuple[A.Expr, bool]] = {}
+        self._free: dict[int, tuple[A.Expr, frozenset[str]]] = {}
+        self._static: dict[int, tuple[A.Expr, bool]] = {}
+        self.code = _Code("_unused", "")
+        self.context = 0  # which meaning pvariable names have (see `values`)
+        self.sources: dict[str, str] = {}
+        # what a pvariable reference means in the function being written:
+        # "name" / "name'" -> (node, input expression or None)
+        self.values: dict[str, tuple[_Node, str | None]] = {}
 
     # -- helpers -----------------------------------------------------
 
@@ -152,10 +526,6 @@ class _Compiler:
     @staticmethod
     def rank(scope: Scope) -> int:
         return 1 + len(scope)
-
-    def const(self, value: Any, scope: Scope, dtype: Any = None) -> Fn:
-        arr = np.asarray(value, dtype=dtype).reshape((1,) * self.rank(scope))
-        return lambda env: arr
 
     def code_of(self, name: str, type_hint: str | None) -> tuple[int, str]:
         """Code and type of an enum value or object name."""
@@ -170,48 +540,316 @@ class _Compiler:
             raise SimulationError(f"unknown object or enum value '{name}'")
         return self.codes[owner][name], owner
 
+    def aux(self, value: Any) -> str:
+        """A name for `value` in the generated code's globals."""
+        self._aux_count += 1
+        name = f"k{self._aux_count}"
+        if isinstance(value, np.ndarray):
+            value.flags.writeable = False
+        self.ns[name] = value
+        return name
+
+    def const(self, value: Any, rtype: str, dtype: Any = None) -> _Node:
+        """A value known when the simulator is built (never written to)."""
+        arr = np.array(value, dtype=dtype)
+        key = None
+        if arr.size <= 4096:
+            key = (arr.dtype.str, arr.shape, arr.tobytes(), rtype)
+            hit = self._consts.get(key)
+            if hit is not None:
+                return hit
+        node = _Node(self.aux(arr), arr.shape, arr.dtype, rtype, False, value=arr)
+        if key is not None:
+            self._consts[key] = node
+        return node
+
+    def scalar(self, value: Any, scope: Scope, rtype: str, dtype: Any) -> _Node:
+        return self.const(np.asarray(value, dtype=dtype).reshape((1,) * self.rank(scope)), rtype)
+
+    def begin(self, name: str, params: str, large: bool = False) -> _Code:
+        """Start a function; `large`: for large batches (where memory
+        traffic costs more than the number of numpy calls)."""
+        self.code = _Code(name, params, large)
+        return self.code
+
+    @property
+    def large(self) -> bool:
+        return self.code.large
+
+    def build(self, code: _Code) -> Callable[..., Any]:
+        source = code.source()
+        self.sources[code.name] = source
+        log.debug("generated %s:\n%s", code.name, source)
+        exec(compile(source, f"<rddl {self.model.name}: {code.name}>", "exec"), self.ns)  # noqa: S102
+        return self.ns.pop(code.name)  # type: ignore[no-any-return]
+
+    def op(
+        self,
+        template: str,
+        args: list[_Node],
+        rtype: str,
+        view: bool = False,
+        bounds: Callable[..., tuple[Array, Array] | None] | None = None,
+    ) -> _Node:
+        """The value of `template` (a Python expression with {0}, {1}...
+        for the arguments): folded when every argument is known, else one
+        statement (or a value computed before with the same text).
+
+        `view`: the value may share the first argument's memory (and has
+        its bounds, rearranged the same way); `bounds`: computes the
+        value's bounds from the arguments' (see `bounds_of`)."""
+        text = template.format(*(a.code for a in args))
+        if all(a.value is not None for a in args):
+            try:
+                with np.errstate(all="ignore"):
+                    value = eval(_compiled(text), self.ns)  # noqa: S307
+            except Exception:  # noqa: BLE001 - it raises at run time then, as it should
+                pass
+            else:
+                return self.const(value, rtype)
+        key = ("op", text)
+        hit = self.code.lookup(key)
+        if hit is not None:
+            return hit
+        shape, dtype = self._probe(template, args)
+        name = self.code.temp()
+        self.code.emit(f"{name} = {text}")
+        owner = args[0].owner if view else name
+        node = _Node(name, shape, dtype, rtype, any(a.batched for a in args), owner=owner)
+        self.code.meta[name] = (shape, dtype, owner, node.batched)
+        if view and len(args) == 1:
+            b = self.bounds_of(args[0])
+            if b is not None:
+                with np.errstate(all="ignore"):
+                    code = _compiled(template.format("_x"))
+                    lo = eval(code, self.ns, {"_x": np.broadcast_to(b[0], args[0].shape), "B": 1})  # noqa: S307
+                    hi = eval(code, self.ns, {"_x": np.broadcast_to(b[1], args[0].shape), "B": 1})  # noqa: S307
+                node.bounds = (np.asarray(lo), np.asarray(hi))
+        elif bounds is not None:
+            given = [self.bounds_of(a) for a in args]
+            if all(b is not None for b in given):
+                with np.errstate(all="ignore"):
+                    found = bounds(*given)
+                # (finite, and small enough that int64 arithmetic cannot wrap)
+                if found is not None and all((np.abs(x) < 2.0**52).all() for x in found):
+                    node.bounds = (np.asarray(found[0], dtype=np.float64), np.asarray(found[1], dtype=np.float64))
+        self.code.store(key, node)
+        return node
+
+    @staticmethod
+    def bounds_of(node: _Node) -> tuple[Array, Array] | None:
+        """Elementwise bounds of a value, where known: sound for the
+        operations that carry them (IEEE rounding is monotone, and the
+        bounds are computed with the same operations as the values)."""
+        if node.bounds is not None:
+            return node.bounds
+        if node.value is not None and node.value.dtype.kind in "bif":
+            v = node.value.astype(np.float64)
+            if np.isfinite(v).all():
+                return v, v
+            return None
+        if node.dtype == np.bool_:
+            return np.zeros((1,) * len(node.shape)), np.ones((1,) * len(node.shape))
+        return None
+
+    def _probe(self, template: str, args: list[_Node]) -> tuple[tuple[int, ...], np.dtype[Any]]:
+        """Shape and dtype of `template`'s value, found by running it once
+        on stand-ins (zeros, batch of one) for the values not known."""
+        local: dict[str, Any] = {"B": 1}
+        names = []
+        for i, a in enumerate(args):
+            if a.value is not None:
+                names.append(a.code)
+            else:
+                local[f"_d{i}"] = np.zeros(a.shape, a.dtype)
+                names.append(f"_d{i}")
+        with np.errstate(all="ignore"):
+            out = np.asarray(eval(_compiled(template.format(*names)), self.ns, local))  # noqa: S307
+        return out.shape, out.dtype
+
+    def emit_value(self, text: str, shape: tuple[int, ...], dtype: Any, rtype: str) -> _Node:
+        """A statement whose value is never folded or reused (a draw)."""
+        name = self.code.temp()
+        self.code.emit(f"{name} = {text}")
+        self.code.meta[name] = (shape, np.dtype(dtype), name, True)
+        return _Node(name, shape, np.dtype(dtype), rtype, True, owner=name)
+
+    def expand(self, node: _Node, keep: list[bool]) -> _Node:
+        """`node` (over the kept scope variables) over the whole scope."""
+        return self.op("{0}" + _index_code(keep), [node], node.rtype, view=True)
+
+    def cast(self, node: _Node, dtype: Any) -> _Node:
+        dtype = np.dtype(dtype)
+        if node.dtype == dtype:
+            return node
+        # (truncation is monotone: the bounds truncated)
+        bound = _bounds_trunc if dtype.kind in "iu" else _bounds_same
+        return self.op(f"{{0}}.astype({_DTYPE_CODE[dtype]})", [node], node.rtype, bounds=bound)
+
+    def logic(self, ufunc: str, a: _Node, b: _Node, rtype: str = "bool") -> _Node:
+        """`_land` or `_lor` of two values. For large batches, where one is a
+        bool constant, on uint8 views: numpy's bool loops are slow (about
+        20 times) when an operand is broadcast along a long inner loop."""
+        if self.large and a.dtype == b.dtype == np.bool_ and (a.value is None) != (b.value is None):
+            const, other = (a, b) if a.value is not None else (b, a)
+            assert const.value is not None
+            u8 = self.aux(const.value.view(np.uint8))
+            bit = "_bitand" if ufunc == "_land" else "_bitor"
+            return self.op(f"{bit}({{0}}.view(_u8), {u8}).view(_bool)", [other], rtype)
+        return self.op(f"{ufunc}({{0}}, {{1}})", [a, b], rtype)
+
+    def batch_last(self, text: str, rank: int) -> str:
+        """Code for the batch-first array `text` viewed batch last; for large
+        batches copied so (operations on mixed layouts are slow)."""
+        if rank <= 1:
+            return text
+        if self.large:
+            return f"_contiguous(({text}){_batch_last(rank)})"
+        return f"({text}){_batch_last(rank)}"
+
+    def total(self, node: _Node, axes: tuple[int, ...], rtype: str, keepdims: bool = False) -> _Node:
+        """`node` summed over `axes` (as np.sum: bools counted as int64).
+        For large batches, bools are counted in bytes where fewer than 256
+        are added (several times faster than adding them as int64)."""
+        keep = ", keepdims=True" if keepdims else ""
+        count = int(np.prod([node.shape[a] for a in axes]))
+        if self.large and node.dtype == np.bool_ and count < 256:
+            return self.op(f"{{0}}.view(_u8).sum(axis={_axis_code(axes)}, dtype=_u8{keep}).astype(_i64)", [node], rtype)
+        return self.op(f"{{0}}.sum(axis={_axis_code(axes)}{keep})", [node], rtype)
+
+    def lnot(self, a: _Node) -> _Node:
+        return self.op("_lnot({0})", [a], "bool")
+
+    def table(self, t: str) -> str:
+        if t not in self._tables:
+            self._tables[t] = self.aux(self.numeric_of_code[t])
+        return self._tables[t]
+
+    def fail(self, func: Callable[..., None], *args: str) -> None:
+        """A statement that calls `func` (which raises) with values by name."""
+        self.code.emit(f"{self.aux(func)}({', '.join(args)})")
+
+    # -- what an expression depends on --------------------------------
+
+    # (the caches below are keyed by id and keep the expression alive, so
+    # that an id is never reused by another expression)
+
+    def is_random(self, e: A.Expr) -> bool:
+        hit = self._random.get(id(e))
+        if hit is None:
+            hit = (e, _is_draw(e) or any(self.is_random(c) for c in A.children(e)))
+            self._random[id(e)] = hit
+        return hit[1]
+
+    def free_vars(self, e: A.Expr) -> frozenset[str]:
+        hit = self._free.get(id(e))
+        if hit is None:
+            if isinstance(e, A.Var):
+                found = frozenset((e.name,))
+            else:
+                found = frozenset().union(*(self.free_vars(c) for c in A.children(e)))
+                if isinstance(e, (A.Aggregation, A.DiscreteOver)):
+                    found = found - {p.name for p in e.params}
+            hit = self._free[id(e)] = (e, found)
+        return hit[1]
+
+    def is_static(self, e: A.Expr) -> bool:
+        """Reads only non-fluents and constants (so it folds), and draws nothing."""
+        hit = self._static.get(id(e))
+        if hit is None:
+            static = not self.is_random(e)
+            if static and isinstance(e, A.PVar):
+                p = self.model.pvariables.get(e.name)
+                static = p is None or e.default or p.kind == NON_FLUENT
+            static = static and all(self.is_static(c) for c in A.children(e))
+            hit = self._static[id(e)] = (e, static)
+        return hit[1]
+
     # -- expressions -------------------------------------------------
 
-    def compile(self, e: A.Expr, scope: Scope, hint: str | None = None) -> tuple[Fn, str]:
-        """Closure and value type ('bool', 'int', 'real' or a type name)."""
+    def compile(self, e: A.Expr, scope: Scope, hint: str | None = None) -> _Node:
+        """The value of `e` in `scope` (statements added to the function)."""
         method = getattr(self, "_" + type(e).__name__)
-        return method(e, scope, hint)  # type: ignore[no-any-return]
+        if self.is_random(e):
+            return method(e, scope, hint)  # type: ignore[no-any-return]
+        # a pure expression: in the scope of the variables it reads, once
+        names = [v for v, _ in scope]
+        used = sorted(
+            {max(i for i, v in enumerate(names) if v == name) for name in self.free_vars(e) if name in names}
+        )
+        if len(used) < len(scope):
+            node = self.compile(e, tuple(scope[i] for i in used), hint)
+            kept = set(used)
+            return self.expand(node, [i in kept for i in range(len(scope))])
+        key = ("expr", self.context, e, scope, hint)
+        hit = self.code.lookup(key)
+        if hit is None:
+            hit = method(e, scope, hint)
+            self.code.store(key, hit)
+        return hit
 
-    def numeric(self, e: A.Expr, scope: Scope) -> tuple[Fn, str]:
+    def numeric(self, e: A.Expr, scope: Scope) -> _Node:
         """Compile for use as a number (enum @1..@n -> their integers)."""
-        fn, t = self.compile(e, scope)
-        table = self.numeric_of_code.get(t)
-        if table is not None:
-            return (lambda env: table[fn(env)]), "int"
-        return fn, t
+        return self.to_numeric(self.compile(e, scope))
 
-    def _Const(self, e: A.Const, scope: Scope, hint: str | None) -> tuple[Fn, str]:
+    def to_numeric(self, node: _Node) -> _Node:
+        if node.rtype in self.numeric_of_code:
+            return self.op(self.table(node.rtype) + "[{0}]", [node], "int")
+        return node
+
+    def _Const(self, e: A.Const, scope: Scope, hint: str | None) -> _Node:
         v = e.value
         if isinstance(v, bool):
-            return self.const(v, scope, np.bool_), "bool"
+            return self.scalar(v, scope, "bool", np.bool_)
         if isinstance(v, int):
-            return self.const(v, scope, np.int64), "int"
-        return self.const(v, scope, np.float64), "real"
+            return self.scalar(v, scope, "int", np.int64)
+        return self.scalar(v, scope, "real", np.float64)
 
-    def _Var(self, e: A.Var, scope: Scope, hint: str | None) -> tuple[Fn, str]:
+    def _Var(self, e: A.Var, scope: Scope, hint: str | None) -> _Node:
         # A variable used as a value: the code of the object it ranges over.
         pos = [i for i, (v, _) in enumerate(scope) if v == e.name]
         i = pos[-1]
         t = scope[i][1]
         shape = [1] * self.rank(scope)
-        shape[1 + i] = self.sizes[t]
-        arr = np.arange(self.sizes[t], dtype=np.int64).reshape(shape)
-        return (lambda env: arr), t
+        shape[i] = self.sizes[t]
+        return self.const(np.arange(self.sizes[t], dtype=np.int64).reshape(shape), t)
 
-    def _EnumLit(self, e: A.EnumLit, scope: Scope, hint: str | None) -> tuple[Fn, str]:
+    def _EnumLit(self, e: A.EnumLit, scope: Scope, hint: str | None) -> _Node:
         code, t = self.code_of(e.name, hint)
-        return self.const(code, scope, np.int64), t
+        return self.scalar(code, scope, t, np.int64)
 
-    def _ObjectLit(self, e: A.ObjectLit, scope: Scope, hint: str | None) -> tuple[Fn, str]:
+    def _ObjectLit(self, e: A.ObjectLit, scope: Scope, hint: str | None) -> _Node:
         code, t = self.code_of(e.name, hint)
-        return self.const(code, scope, np.int64), t
+        return self.scalar(code, scope, t, np.int64)
 
-    def _PVar(self, e: A.PVar, scope: Scope, hint: str | None) -> tuple[Fn, str]:
+    def _literal_code(self, a: A.Expr, t: str) -> int | None:
+        """The code of an argument that names an object or enum value."""
+        if isinstance(a, (A.EnumLit, A.ObjectLit)) or (
+            isinstance(a, A.PVar) and a.name not in self.model.pvariables
+        ):
+            name = a.name
+            if isinstance(a, A.PVar) and t in self.codes and "@" + name in self.codes[t]:
+                name = "@" + name
+            return self.code_of(name, t)[0]
+        return None
+
+    def ref(self, p: PVariable, primed: bool) -> _Node:
+        key = p.name + ("'" if primed else "")
+        hit = self.values.get(key)
+        if hit is None:
+            # read before it is computed (or where it has no value): rddlsim
+            # has no value to give either
+            node = self.emit_value(
+                f"{self.aux(_missing)}({key!r})", (*self.shape_of(p), 1), _DTYPES.get(p.range, np.int64), p.range
+            )
+            self.values[key] = (node, None)
+            return node
+        node, source = hit
+        if source is not None:
+            self.code.inputs.setdefault(node.code, source)
+        return node
+
+    def _PVar(self, e: A.PVar, scope: Scope, hint: str | None) -> _Node:
         p = self.model.pvariables.get(e.name)
         if p is None:  # a bare object name (or an enum value without '@')
             name = e.name
@@ -221,394 +859,931 @@ class _Compiler:
         if e.default:
             default = self.model.default_of(p)
             if p.range in self.codes:
-                return self.const(self.codes[p.range][default], scope, np.int64), p.range  # type: ignore[index]
-            return self.const(default, scope), p.range
-        key = p.name + ("'" if e.primed else "")
-        n = len(scope)
-        # Fast path: every argument a distinct variable -> a view.
-        positions = []
-        for a in e.args:
-            if isinstance(a, A.Var):
-                positions.append(max(i for i, (v, _) in enumerate(scope) if v == a.name))
-            else:
-                positions = []
-                break
-        if len(positions) == len(e.args) and len(set(positions)) == len(positions):
-            order = sorted(range(len(positions)), key=lambda i: positions[i])
-            axes = (0,) + tuple(1 + i for i in order)
-            missing = tuple(1 + j for j in range(n) if j not in positions)
-            if axes == tuple(range(len(axes))):
-                if not missing:
-                    return (lambda env: env.values[key]), p.range
-                return (lambda env: np.expand_dims(env.values[key], missing)), p.range
-            return (lambda env: np.expand_dims(np.transpose(env.values[key], axes), missing)), p.range
-        # General path: advanced indexing with broadcast index arrays.
-        index_fns: list[Callable[[_Env], Any]] = []
+                return self.scalar(self.codes[p.range][default], scope, p.range, np.int64)  # type: ignore[index]
+            return self.scalar(default, scope, p.range, None)
+        base = self.ref(p, e.primed)
+        names = [v for v, _ in scope]
+        # Fast path: each argument a distinct variable or a literal -> a view.
+        index: list[str] = []
+        positions: list[int] = []
         for a, t in zip(e.args, p.params, strict=True):
             if isinstance(a, A.Var):
-                fn, _ = self._Var(a, scope, None)
-                index_fns.append(fn)
-            elif isinstance(a, (A.EnumLit, A.ObjectLit)) or (
-                isinstance(a, A.PVar) and a.name not in self.model.pvariables
-            ):
-                name = a.name
-                if isinstance(a, A.PVar) and t in self.codes and "@" + name in self.codes[t]:
-                    name = "@" + name
-                code, _ = self.code_of(name, t)
-                arr = np.full((1,) * self.rank(scope), code, dtype=np.int64)
-                index_fns.append(_constant_fn(arr))
-            else:
-                fn, _ = self.compile(a, scope, t)
-                index_fns.append(fn)
+                positions.append(max(i for i, v in enumerate(names) if v == a.name))
+                index.append(":")
+                continue
+            code = self._literal_code(a, t)
+            if code is None:
+                break
+            index.append(str(code))
+        if len(index) == len(e.args) and len(set(positions)) == len(positions):
+            node = base
+            if any(i != ":" for i in index):
+                node = self.op("{0}[" + ", ".join([*index, ":"]) + "]", [node], p.range, view=True)
+            order = sorted(range(len(positions)), key=lambda i: positions[i])
+            if order != list(range(len(positions))):
+                axes = (*order, len(order))
+                node = self.op(f"{{0}}.transpose({axes})", [node], p.range, view=True)
+            present = set(positions)
+            if len(present) < len(scope):
+                node = self.expand(node, [i in present for i in range(len(scope))])
+            return node
+        # General path: advanced indexing with broadcast index arrays.
         rank = self.rank(scope)
-
-        def gather(env: _Env) -> Array:
-            base = env.values[key]
-            idx = [f(env) for f in index_fns]
-            if base.shape[0] == 1:
-                b = np.zeros((1,) * rank, dtype=np.int64)
+        indices: list[_Node] = []
+        for a, t in zip(e.args, p.params, strict=True):
+            if isinstance(a, A.Var):
+                indices.append(self._Var(a, scope, None))
+                continue
+            code = self._literal_code(a, t)
+            if code is not None:
+                indices.append(self.scalar(code, scope, t, np.int64))
             else:
-                b = np.arange(base.shape[0]).reshape((-1,) + (1,) * (rank - 1))
-            return base[(b, *idx)]  # type: ignore[no-any-return]
+                indices.append(self.compile(a, scope, t))
+        if base.batched:
+            b = f"_bidx(B, {rank})"
+        else:
+            b = self.aux(np.zeros((1,) * rank, dtype=np.int64))
+        parts = ", ".join([f"{{{i + 1}}}" for i in range(len(indices))] + [b])
+        return self.op("{0}[(" + parts + ")]", [base, *indices], p.range)
 
-        return gather, p.range
-
-    def _Unary(self, e: A.Unary, scope: Scope, hint: str | None) -> tuple[Fn, str]:
-        fn, t = self.numeric(e.operand, scope)
+    def _Unary(self, e: A.Unary, scope: Scope, hint: str | None) -> _Node:
+        x = self.numeric(e.operand, scope)
         if e.op == "~":
-            return (lambda env: np.logical_not(fn(env))), "bool"
+            return self.op("_lnot({0})", [x], "bool")
         if e.op == "-":
-            if t == "bool":
-                return (lambda env: -fn(env).astype(np.int64)), "int"
-            return (lambda env: np.negative(fn(env))), t
-        return fn, t
+            if x.rtype == "bool":
+                return self.op("_neg({0}.astype(_i64))", [x], "int", bounds=_bounds_neg)
+            return self.op("_neg({0})", [x], x.rtype, bounds=_bounds_neg)
+        return x
 
-    def _Binary(self, e: A.Binary, scope: Scope, hint: str | None) -> tuple[Fn, str]:
-        op = e.op
-        if op in ("==", "~="):
-            lf, lt = self.compile(e.left, scope)
-            rf, rt = self.compile(e.right, scope, lt)
+    def _Binary(self, e: A.Binary, scope: Scope, hint: str | None) -> _Node:
+        if e.op in ("==", "~="):
+            left = self.compile(e.left, scope)
+            lt = left.rtype
+            right = self.compile(e.right, scope, lt)
+            rt = right.rtype
             if lt != rt and (lt in self.codes) != (rt in self.codes) or (
                 lt in self.codes and rt in self.codes and lt != rt
             ):
                 # mixed forms: compare as numbers where an enum is numeric
-                lf, lt = self.numeric(e.left, scope)
-                rf, rt = self.numeric(e.right, scope)
-            if op == "==":
-                return (lambda env: np.equal(lf(env), rf(env))), "bool"
-            return (lambda env: np.not_equal(lf(env), rf(env))), "bool"
-        lf, lt = self.numeric(e.left, scope)
-        rf, rt = self.numeric(e.right, scope)
-        ufunc = {
-            "^": np.logical_and,
-            "|": np.logical_or,
-            "<": np.less,
-            "<=": np.less_equal,
-            ">": np.greater,
-            ">=": np.greater_equal,
-        }.get(op)
-        if ufunc is not None:
-            return (lambda env: ufunc(lf(env), rf(env))), "bool"
+                left = self.to_numeric(left)
+                right = (
+                    self.to_numeric(right) if self.is_random(e.right) else self.numeric(e.right, scope)
+                )
+            return self.op("_eq({0}, {1})" if e.op == "==" else "_ne({0}, {1})", [left, right], "bool")
+        left = self.numeric(e.left, scope)
+        right = self.numeric(e.right, scope)
+        return self.binary(e, left, right)
+
+    def binary(self, e: A.Binary, left: _Node, right: _Node) -> _Node:
+        """`left op right` for an arithmetic or logical operator."""
+        op = e.op
+        lt, rt = left.rtype, right.rtype
+        args = [left, right]
+        if op in ("^", "|"):
+            return self.logic(_COMPARISONS[op], left, right)
+        if op in _COMPARISONS:
+            return self.op(f"{_COMPARISONS[op]}({{0}}, {{1}})", args, "bool")
         if op == "=>":
-            return (lambda env: np.logical_or(np.logical_not(lf(env)), rf(env))), "bool"
+            return self.logic("_lor", self.lnot(left), right)
         if op == "<=>":
-            return (lambda env: np.equal(lf(env).astype(bool), rf(env).astype(bool))), "bool"
+            return self.op("_eq({0}.astype(_bool), {1}.astype(_bool))", args, "bool")
         out = "real" if "real" in (lt, rt) or op == "/" else "int"
         if op == "+":
             if lt == rt == "bool":
-                return (lambda env: lf(env).astype(np.int64) + rf(env)), "int"
-            return (lambda env: np.add(lf(env), rf(env))), out
+                return self.op("{0}.astype(_i64) + {1}", args, "int", bounds=_bounds_add)
+            return self.op("_add({0}, {1})", args, out, bounds=_bounds_add)
         if op == "-":
             if lt == "bool":
-                return (lambda env: lf(env).astype(np.int64) - rf(env)), out
-            return (lambda env: np.subtract(lf(env), rf(env))), out
+                return self.op("{0}.astype(_i64) - {1}", args, out, bounds=_bounds_sub)
+            return self.op("_sub({0}, {1})", args, out, bounds=_bounds_sub)
         if op == "*":
             if lt == rt == "bool":
-                return (lambda env: np.logical_and(lf(env), rf(env)).astype(np.int64)), "int"
-            return (lambda env: np.multiply(lf(env), rf(env))), out
+                return self.op("_land({0}, {1}).astype(_i64)", args, "int")
+            return self.op("_mul({0}, {1})", args, out, bounds=_bounds_mul)
         if op == "/":
-            return (lambda env: np.true_divide(lf(env), rf(env))), "real"
+            return self.op("_div({0}, {1})", args, "real", bounds=_bounds_div)
         raise SimulationError(f"{e.loc}: unknown operator '{op}'")
 
-    def _If(self, e: A.If, scope: Scope, hint: str | None) -> tuple[Fn, str]:
-        cf, _ = self.numeric(e.cond, scope)
-        tf, tt = self.compile(e.then, scope, hint)
-        ef, et = self.compile(e.else_, scope, hint if tt not in ("bool", "int", "real") else tt)
-        t = _join(tt, et)
-        return (lambda env: np.where(cf(env), tf(env), ef(env))), t
+    def _If(self, e: A.If, scope: Scope, hint: str | None) -> _Node:
+        cond = self.numeric(e.cond, scope)
+        pick: bool | None = None
+        if cond.value is not None and cond.value.size:
+            if cond.value.all():
+                pick = True
+            elif not cond.value.any():
+                pick = False
+        if pick is None:
+            then = self.compile(e.then, scope, hint)
+            else_ = self.compile(e.else_, scope, hint if then.rtype not in _DTYPES else then.rtype)
+            t = _join(then.rtype, else_.rtype)
+            if cond.dtype == then.dtype == else_.dtype == np.bool_:
+                # a constant true or false branch: one logical operation
+                # (np.where broadcasting a constant is much slower)
+                for node, other in ((then, else_), (else_, then)):
+                    if node.value is None or not node.value.size:
+                        continue
+                    if node.value.all():
+                        if node is then:
+                            return self.logic("_lor", cond, other, t)
+                        return self.logic("_lor", self.lnot(cond), other, t)
+                    if not node.value.any():
+                        if node is then:
+                            return self.logic("_land", self.lnot(cond), other, t)
+                        return self.logic("_land", cond, other, t)
+                if self.large:
+                    # np.where is slow on large bool arrays: logical operations
+                    yes = self.logic("_land", cond, then, t)
+                    no = self.logic("_land", self.lnot(cond), else_, t)
+                    return self.logic("_lor", yes, no, t)
+            return self.op("_where({0}, {1}, {2})", [cond, then, else_], t, bounds=_bounds_either)
+        # the condition is the same everywhere: the other branch only for
+        # its draws (to keep the random stream) or its type
+        with self.branch(keep=pick or self.is_random(e.then)):
+            then = self.compile(e.then, scope, hint)
+        with self.branch(keep=not pick or self.is_random(e.else_)):
+            else_ = self.compile(e.else_, scope, hint if then.rtype not in _DTYPES else then.rtype)
+        t = _join(then.rtype, else_.rtype)
+        node = self.cast(then if pick else else_, np.result_type(then.dtype, else_.dtype))
+        return node if node.rtype == t else dataclasses.replace(node, rtype=t)
 
-    def _Switch(self, e: A.Switch, scope: Scope, hint: str | None) -> tuple[Fn, str]:
-        sf, st = self.compile(e.subject, scope)
-        arms: list[tuple[Fn, Fn]] = []
-        default: Fn | None = None
+    @contextlib.contextmanager
+    def branch(self, keep: bool) -> Iterator[None]:
+        """Statements that are kept, or compiled only to be thrown away."""
+        if keep:
+            yield
+            return
+        code = self.code
+        start, count = len(code.lines), len(code.draws)
+        code.memo.append({})
+        try:
+            yield
+        finally:
+            code.memo.pop()
+            del code.lines[start:]
+            del code.draws[count:]
+
+    def _Switch(self, e: A.Switch, scope: Scope, hint: str | None) -> _Node:
+        subject = self.compile(e.subject, scope)
         t: str | None = None
+        labels: list[_Node] = []
         for case in e.cases:
-            vf, vt = self.compile(case.value, scope, hint)
-            t = vt if t is None else _join(t, vt)
+            if case.label is not None:
+                labels.append(self.compile(case.label, scope, subject.rtype))
+        # values in the order rddlsim's evaluation draws them: the labelled
+        # cases, then the default
+        values: list[_Node] = []
+        default: _Node | None = None
+        types: list[str] = []
+        for case in e.cases:
+            if case.label is not None:
+                node = self.compile(case.value, scope, hint)
+                values.append(node)
+        for case in e.cases:
             if case.label is None:
-                default = vf
-            else:
-                lf, _ = self.compile(case.label, scope, st)
-                arms.append((lf, vf))
+                default = self.compile(case.value, scope, hint)
+        it = iter(values)
+        for case in e.cases:
+            types.append((default if case.label is None else next(it)).rtype)  # type: ignore[union-attr]
+        for vt in types:
+            t = vt if t is None else _join(t, vt)
+        fallback = default if default is not None else values[-1]
+        if not labels:
+            return fallback
+        conds = [self.op("_eq({0}, {1})", [subject, lab], "bool") for lab in labels]
+        n = len(conds)
+        template = (
+            "_select(["
+            + ", ".join(f"{{{i}}}" for i in range(n))
+            + "], ["
+            + ", ".join(f"{{{n + i}}}" for i in range(n))
+            + f"], {{{2 * n}}})"
+        )
+        return self.op(template, [*conds, *values, fallback], t or "real")
 
-        def switch(env: _Env) -> Array:
-            subject = sf(env)
-            conds = [np.equal(subject, lf(env)) for lf, _ in arms]
-            values = [vf(env) for _, vf in arms]
-            if default is not None:
-                fallback = default(env)
-            else:
-                fallback = values[-1]
-            return np.select(conds, values, fallback) if conds else fallback  # type: ignore[no-any-return]
+    # -- aggregations ------------------------------------------------
 
-        return switch, t or "real"
-
-    def _Aggregation(self, e: A.Aggregation, scope: Scope, hint: str | None) -> tuple[Fn, str]:
+    def _Aggregation(self, e: A.Aggregation, scope: Scope, hint: str | None) -> _Node:
         inner = scope + tuple((p.name, p.type) for p in e.params)
-        bf, bt = self.numeric(e.body, inner)
-        k = len(e.params)
+        n, k = len(scope), len(e.params)
         sizes = tuple(self.sizes[p.type] for p in e.params)
-        axes = tuple(range(-k, 0))
         op = e.op
-
-        def full(env: _Env) -> Array:
-            x = bf(env)
-            return np.broadcast_to(x, x.shape[: x.ndim - k] + sizes)
-
+        if op == "sum" and not self.is_random(e.body):
+            split = self._distribute(e)
+            if split is not None:
+                return self.compile(split, scope, hint)
+        body: _Node | None = None
+        chain = e.body.op if isinstance(e.body, A.Binary) else None
+        if op in ("sum", "exists") and chain in ("^", "*") and not (op == "exists" and chain == "*"):
+            assert isinstance(e.body, A.Binary) and chain is not None
+            leaves = _leaves(e.body, chain)
+            nodes = [self.numeric(leaf, inner) for leaf in leaves]
+            if 0 not in sizes:
+                out = self._contract(op, chain, nodes, n, k, sizes)
+                if out is None:
+                    out = self._eliminate(op, chain, nodes, n, k, sizes)
+                if out is not None:
+                    return out
+            body = self._rebuild(e.body, chain, iter(nodes))
+        if body is None:
+            body = self.numeric(e.body, inner)
+        bt = body.rtype
+        # the aggregation's variables: the axes just before the batch axis
+        axes = _axis_code(tuple(range(n, n + k)))
+        if 0 in sizes or op in ("prod", "avg", "argmax", "argmin"):
+            # as the definition says: over every grounding of the variables
+            full = f"_broadcast_to({{0}}, {{0}}.shape[:{n}] + {sizes} + {{0}}.shape[-1:])"
+            if op == "sum":
+                return self.op(f"np.sum({full}, axis={axes})", [body], "int" if bt == "bool" else bt)
+            if op == "prod":
+                return self.op(f"np.prod({full}, axis={axes})", [body], "int" if bt == "bool" else bt)
+            if op == "avg":
+                return self.op(f"np.mean({full}, axis={axes})", [body], "real")
+            if op in ("min", "max"):
+                return self.op(f"np.{op}({full}, axis={axes})", [body], bt)
+            if op == "forall":
+                return self.op(f"np.all({full}, axis={axes})", [body], "bool")
+            if op == "exists":
+                return self.op(f"np.any({full}, axis={axes})", [body], "bool")
+            if op in ("argmax", "argmin"):
+                return self.op(f"np.{op}({full}, axis={n})", [body], e.params[0].type)
+        size = int(np.prod(body.shape))
+        if k == 1 and op in ("sum", "min", "max", "forall", "exists") and body.shape[n] > 1 and (
+            body.shape[n] <= 2 or (body.shape[n] <= 8 and size >= 2048)
+        ):
+            # a short axis: its slices combined, not a reduction (numpy
+            # reduces a short axis in many short loops, slowly)
+            parts = ["{0}[" + ", ".join([":"] * n + [str(j), ":"]) + "]" for j in range(body.shape[n])]
+            if op == "sum":
+                if body.dtype == np.bool_:
+                    parts[0] += ".astype(_i64)"
+                return self.op(" + ".join(parts), [body], "int" if bt == "bool" else bt)
+            ufunc = {"min": "_minimum", "max": "_maximum", "forall": "_land", "exists": "_lor"}[op]
+            text = parts[0]
+            for part in parts[1:]:
+                text = f"{ufunc}({text}, {part})"
+            return self.op(text, [body], bt if op in ("min", "max") else "bool")
         if op == "sum":
-            out = "int" if bt == "bool" else bt
-            return (lambda env: np.sum(full(env), axis=axes)), out
-        if op == "prod":
-            out = "int" if bt == "bool" else bt
-            return (lambda env: np.prod(full(env), axis=axes)), out
-        if op == "avg":
-            return (lambda env: np.mean(full(env), axis=axes)), "real"
-        if op == "min":
-            return (lambda env: np.min(full(env), axis=axes)), bt
-        if op == "max":
-            return (lambda env: np.max(full(env), axis=axes)), bt
+            out = self.total(body, tuple(range(n, n + k)), "int" if bt == "bool" else bt)
+            # the body does not depend on some of the variables: each value counts that often
+            times = 1
+            for j in range(k):
+                if body.shape[n + j] == 1:
+                    times *= sizes[j]
+            return out if times == 1 else self.op(f"{{0}} * {times}", [out], out.rtype)
+        if op in ("min", "max"):
+            return self.op(f"{{0}}.{op}(axis={axes})", [body], bt)
         if op == "forall":
-            return (lambda env: np.all(full(env), axis=axes)), "bool"
+            return self.op(f"{{0}}.all(axis={axes})", [body], "bool")
         if op == "exists":
-            return (lambda env: np.any(full(env), axis=axes)), "bool"
-        if op in ("argmax", "argmin"):
-            f = np.argmax if op == "argmax" else np.argmin
-            return (lambda env: f(full(env), axis=-1)), e.params[0].type
+            return self.op(f"{{0}}.any(axis={axes})", [body], "bool")
         raise SimulationError(f"{e.loc}: aggregation '{op}_' is not supported by the simulator")
 
-    def _Function(self, e: A.Function, scope: Scope, hint: str | None) -> tuple[Fn, str]:
+    def _eliminate(
+        self, op: str, chain: str, nodes: list[_Node], n: int, k: int, sizes: tuple[int, ...]
+    ) -> _Node | None:
+        """`sum` or `exists` over k variables of a product (or conjunction)
+        where a variable only one factor depends on is summed (or
+        quantified) in that factor first: `sum_{?c, ?i} a(?c, ?i) * b(?p, ?i)`
+        is `sum_{?i} (sum_{?c} a(?c, ?i)) * b(?p, ?i)`, without the tensor
+        over every (?p, ?c, ?i). None where no variable is like that."""
+        if chain == "^" and any(x.dtype != np.bool_ for x in nodes):
+            return None
+        if chain == "*" and any(x.dtype.kind not in "bif" or x.rtype not in _DTYPES for x in nodes):
+            return None
+        nodes = list(nodes)
+        changed = False
+        times = 1
+        for j in range(k):
+            a = n + j
+            deps = [i for i, x in enumerate(nodes) if x.shape[a] > 1]
+            if len(deps) == 1:
+                i = deps[0]
+                if op == "exists":
+                    nodes[i] = self.op(f"{{0}}.any(axis={a}, keepdims=True)", [nodes[i]], nodes[i].rtype)
+                else:
+                    nodes[i] = self.total(nodes[i], (a,), nodes[i].rtype, keepdims=True)
+                changed = True
+            elif not deps:
+                times *= sizes[j]
+        if not changed:
+            return None
+        axes = _axis_code(tuple(range(n, n + k)))
+        real = chain == "*" and any(x.rtype == "real" for x in nodes)
+        f = nodes[0]
+        for x in nodes[1:]:
+            if op == "exists":
+                f = self.logic("_land", f, x)
+            else:  # (counts times bools: a product)
+                f = self.op("_mul({0}, {1})", [f, x], "real" if real else "int", bounds=_bounds_mul)
+        if op == "exists":
+            return self.op(f"{{0}}.any(axis={axes})", [f], "bool")
+        out = self.total(f, tuple(range(n, n + k)), "real" if real else "int")
+        return out if times == 1 else self.op(f"{{0}} * {times}", [out], out.rtype)
+
+    def _distribute(self, e: A.Aggregation) -> A.Expr | None:
+        """A sum over a sum or difference as the sum or difference of two
+        sums (`sum (a - b)` = `sum a - sum b`; in a product, `sum K * (a - b)`
+        = `sum K * a - sum K * b`), where that lets a part become a matrix
+        product or a count; None where it does not help."""
+        body = e.body
+
+        def agg(b: A.Expr) -> A.Aggregation:
+            return A.Aggregation(op="sum", params=e.params, body=b, loc=e.loc)
+
+        if isinstance(body, A.Binary) and body.op in ("+", "-"):
+            return A.Binary(op=body.op, left=agg(body.left), right=agg(body.right), loc=body.loc)
+        if not (isinstance(body, A.Binary) and body.op == "*"):
+            return None
+        leaves = _leaves(body, "*")
+        split = [x for x in leaves if isinstance(x, A.Binary) and x.op in ("+", "-") and not self.is_static(x)]
+        if len(split) != 1 or not any(self.is_static(x) for x in leaves):
+            return None
+        target = split[0]
+        assert isinstance(target, A.Binary)
+
+        def replace(x: A.Expr, new: A.Expr) -> A.Expr:
+            if x is target:
+                return new
+            if isinstance(x, A.Binary) and x.op == "*":
+                return A.Binary(op="*", left=replace(x.left, new), right=replace(x.right, new), loc=x.loc)
+            return x
+
+        return A.Binary(
+            op=target.op, left=agg(replace(body, target.left)), right=agg(replace(body, target.right)), loc=target.loc
+        )
+
+    def _rebuild(self, e: A.Expr, chain: str, nodes: Iterator[_Node]) -> _Node:
+        """The value of a chain of `chain` operators from its leaves' values."""
+        if isinstance(e, A.Binary) and e.op == chain:
+            left = self._rebuild(e.left, chain, nodes)
+            right = self._rebuild(e.right, chain, nodes)
+            return self.binary(e, left, right)
+        return next(nodes)
+
+    def _contract(
+        self, op: str, chain: str, nodes: list[_Node], n: int, k: int, sizes: tuple[int, ...]
+    ) -> _Node | None:
+        """`sum` or `exists` over k variables (the axes n..n+k-1) of the
+        product (or conjunction) of `nodes`, where some factors are known
+        when the simulator is built (a relation: CONNECTED, NEIGHBOR...):
+        a product of the fluent factors with that constant matrix, or, where
+        the relation pairs each value with few others, a few row gathers.
+        None where the pattern does not apply."""
+        known = [x for x in nodes if x.value is not None]
+        fluent = [x for x in nodes if x.value is None]
+        if not known or not fluent:
+            return None
+        if chain == "^":
+            if any(x.dtype != np.bool_ for x in nodes):
+                return None
+        elif any(x.dtype.kind not in "bif" or x.rtype not in _DTYPES for x in nodes):
+            return None
+        # fluent factors that do not depend on the variables summed over
+        # multiply the sum instead of every term
+        outer = [x for x in fluent if all(x.shape[n + j] == 1 for j in range(k))]
+        if outer and len(outer) < len(fluent):
+            inner_nodes = [x for x in nodes if not any(x is o for o in outer)]
+            out = self._contract(op, chain, inner_nodes, n, k, sizes)
+            if out is None:
+                return None
+            for x in outer:
+                x = self.op("{0}[..." + ", 0" * k + ", :]", [x], x.rtype, view=True)
+                if op == "exists":
+                    out = self.logic("_land", out, x)
+                else:
+                    rtype = "real" if "real" in (out.rtype, x.rtype) else "int"
+                    out = self.op("_mul({0}, {1})", [out, x], rtype, bounds=_bounds_mul)
+            return out
+        with np.errstate(all="ignore"):
+            first_value = known[0].value
+            assert first_value is not None
+            kv: Array = first_value
+            for x in known[1:]:
+                assert x.value is not None
+                kv = np.logical_and(kv, x.value) if chain == "^" else kv * x.value
+        f = fluent[0]
+        for x in fluent[1:]:
+            if chain == "^":
+                f = self.logic("_land", f, x)
+            else:
+                f = self.op("_mul({0}, {1})", [f, x], "real", bounds=_bounds_mul)
+        real = any(x.rtype == "real" for x in nodes) and chain == "*"
+        fs, ks = f.shape[:-1], kv.shape[:-1]
+        # bounds of a sum of integers (exact, whatever the order of the additions)
+        sum_bounds: Bounds | None = None
+        fb = self.bounds_of(f)
+        if op == "sum" and fb is not None and f.dtype.kind in "bi" and np.all(np.mod(kv, 1) == 0):
+            with np.errstate(all="ignore"):
+                ends = [kv * fb[0], kv * fb[1]]
+                ends = [np.broadcast_to(x, x.shape[:n] + sizes + x.shape[n + k :]) for x in ends]
+                lo = np.minimum(ends[0], ends[1]).sum(axis=tuple(range(n, n + k)))
+                hi = np.maximum(ends[0], ends[1]).sum(axis=tuple(range(n, n + k)))
+            sum_bounds = (lo.astype(np.float64), hi.astype(np.float64))
+        contracted, k_only, f_only = [], [], []
+        times = 1
+        for j in range(k):
+            a = n + j
+            if fs[a] > 1 and ks[a] > 1:
+                contracted.append(a)
+            elif ks[a] > 1:
+                k_only.append(a)
+            elif fs[a] > 1:
+                f_only.append(a)
+            else:
+                times *= sizes[j]
+        # variables only one side depends on: reduce them on that side first
+        if k_only:
+            ax = tuple(k_only)
+            kv = np.asarray(kv.any(axis=ax, keepdims=True) if op == "exists" else kv.sum(axis=ax, keepdims=True))
+        if f_only:
+            if op == "exists":
+                f = self.op(f"{{0}}.any(axis={_axis_code(tuple(f_only))}, keepdims=True)", [f], f.rtype)
+            else:
+                f = self.total(f, tuple(f_only), f.rtype, keepdims=True)
+        if not contracted:
+            # nothing left to sum over both: a product, its bound variables dropped
+            knode = self.const(kv, "real")
+            if op == "exists":
+                out = self.logic("_land", f, knode)
+            else:
+                if not real and f.dtype == np.bool_ and kv.dtype == np.bool_:
+                    knode = self.const(kv.astype(np.int64), "int")
+                out = self.op("_mul({0}, {1})", [f, knode], "real" if real else "int")
+                if not real and out.dtype != np.int64:
+                    out = self.op("{0}.astype(_i64)", [out], "int")
+                if times != 1:
+                    out = self.op(f"{{0}} * {times}", [out], out.rtype)
+            out = self.op("{0}[..." + ", 0" * k + ", :]", [out], out.rtype, view=True)
+            return _bounded(out, sum_bounds)
+        shared = [i for i in range(n) if fs[i] > 1 and ks[i] > 1]
+        f_out = [i for i in range(n) if fs[i] > 1 and ks[i] == 1]
+        k_out = [i for i in range(n) if ks[i] > 1 and fs[i] == 1]
+        size = [max(fs[i], ks[i]) for i in range(n + k)]
+        S, C, KO = (int(np.prod([size[i] for i in ax], dtype=np.int64)) for ax in (shared, contracted, k_out))
+        # the constant side as (S, KO, C) matrices, the fluent side as
+        # (S, C, columns): f's axes in the order shared, contracted, f_out, batch
+        first = shared + k_out + contracted
+        rest = [i for i in range(n + k) if i not in first]
+        kmat = kv[..., 0].transpose(first + rest).reshape(S, KO, C)
+        f_axes = shared + contracted + f_out
+        fperm = f_axes + [i for i in range(n + k) if i not in f_axes] + [n + k]
+        # (axes of size 1 may stay anywhere: the reshape below drops them)
+        in_place = [i for i in range(n + k) if fs[i] > 1] == f_axes
+        fx = "{0}" if in_place else f"{{0}}.transpose({tuple(fperm)})"
+        sparse = self._sparse(kmat[0], unit=op == "sum") if S == 1 and self.large else None
+        if sparse is not None:
+            # a relation with few pairs per value (neighbours, successors, a
+            # 0/1 relation): a few row gathers, not a product over every pair;
+            # the gathered rows index a zero row added below the others where
+            # a value has fewer pairs
+            cols, padded = sparse
+            flat = self.op(f"{fx}.reshape({C}, -1)", [f], f.rtype, view=True)
+            if padded:
+                flat = self.op("_pad_zero_row({0})", [flat], f.rtype)
+            if op == "exists" or f.dtype != np.bool_:
+                out = self.op(f"{{0}}[{self.aux(cols[0])}]", [flat], f.rtype)
+                add = "_lor" if op == "exists" else "_add"
+                for c in cols[1:]:
+                    out = self.op(f"{add}({{0}}, {{1}}[{self.aux(c)}])", [out, flat], f.rtype)
+                if op == "sum" and not real and out.dtype != np.int64:
+                    out = self.op("{0}.astype(_i64)", [out], "int")
+            else:
+                # counts of bools, added as bytes (at most _SPARSE_MAX of them)
+                flat = self.op("{0}.view(_u8)", [flat], "int", view=True)
+                terms = " + ".join(f"{{0}}[{self.aux(c)}]" for c in cols)
+                out = self.op(terms, [flat], "int")
+                out = self.op("{0}.astype(_i64)", [out], "int")
+        else:
+            # counts of bools are exact in float32 (below 2**24); a sum stays
+            # float64 (exact for integers below 2**53, which int sums are
+            # here): no cast back, the values are those of the int sum
+            # (float64 for both sum and exists, so that an exists and a sum
+            # over the same relation share one product)
+            dt, dcode = np.float64, "_f64"
+            matmul = "_matmul_cols"
+            FO = int(np.prod([size[i] for i in f_out], dtype=np.int64))
+            if not self.large and S * KO * C * FO * _LARGE_BATCH <= _BLAS_BLOCK:
+                matmul = "_matmul"
+            if S == 1:
+                mat = self.const(np.ascontiguousarray(kmat[0], dtype=dt), "real").code
+                text = f"{matmul}({mat}, {fx}.reshape({C}, -1).astype({dcode}, copy=False))"
+            else:
+                mat = self.const(np.ascontiguousarray(kmat, dtype=dt), "real").code
+                text = f"{matmul}({mat}, {fx}.reshape({S}, {C}, -1).astype({dcode}, copy=False))"
+            out = self.op(text, [f], "real" if real else "int")
+            if op == "exists":
+                out = self.op("{0} > 0", [out], "bool")
+        if times != 1 and op == "sum":
+            out = self.op(f"{{0}} * {times}", [out], out.rtype)
+        # (shared, k_out, f_out, batch) -> scope order, batch last
+        axes_now = shared + k_out + f_out
+        out = self.op(
+            "{0}.reshape(" + _tuple_code([*(str(size[i]) for i in axes_now), "-1"]) + ")",
+            [out],
+            out.rtype,
+            view=True,
+        )
+        ordered = sorted(axes_now)
+        if axes_now != ordered:
+            perm = (*(axes_now.index(i) for i in ordered), len(ordered))
+            out = self.op(f"{{0}}.transpose({perm})", [out], out.rtype, view=True)
+        if len(ordered) < n:
+            kept = set(ordered)
+            out = self.expand(out, [i in kept for i in range(n)])
+        return _bounded(out, sum_bounds)
+
+    @staticmethod
+    def _sparse(kmat: Array, unit: bool) -> tuple[list[Array], bool] | None:
+        """For a (KO, C) matrix with at most a few nonzeros per row (all 1
+        if `unit`): the column of each row's j-th nonzero, C (a zero row
+        added below) where a row has fewer; and whether any has fewer.
+        None where the matrix is not like that."""
+        nonzero = kmat != 0
+        if unit and not (kmat[nonzero] == 1).all():
+            return None
+        counts = nonzero.sum(axis=1)
+        most = int(counts.max()) if counts.size else 0
+        if most == 0 or most > _SPARSE_MAX or most * 2 > kmat.shape[1]:
+            return None
+        cols = [np.full(kmat.shape[0], kmat.shape[1], dtype=np.intp) for _ in range(most)]
+        for o in range(kmat.shape[0]):
+            for j, c in enumerate(np.nonzero(nonzero[o])[0]):
+                cols[j][o] = c
+        return cols, bool((counts < most).any())
+
+    # -- functions ---------------------------------------------------
+
+    def _Function(self, e: A.Function, scope: Scope, hint: str | None) -> _Node:
         args = [self.numeric(a, scope) for a in e.args]
-        fns = [f for f, _ in args]
-        types = [t for _, t in args]
+        types = [a.rtype for a in args]
         name = e.name
-        unary: dict[str, Callable[[Array], Array]] = {
-            "exp": np.exp, "ln": np.log, "sqrt": np.sqrt, "cos": np.cos, "sin": np.sin,
-            "tan": np.tan, "acos": np.arccos, "asin": np.arcsin, "atan": np.arctan,
-            "cosh": np.cosh, "sinh": np.sinh, "tanh": np.tanh,
-        }
-        if name in unary:
-            g = unary[name]
-            f0 = fns[0]
-            return (lambda env: g(np.asarray(f0(env), dtype=np.float64))), "real"
+        if name in _UNARY_FUNCTIONS:
+            rising = _bounds_exp if name == "exp" else None
+            return self.op(f"{_UNARY_FUNCTIONS[name]}({{0}}.astype(_f64, copy=False))", args[:1], "real", bounds=rising)
         if name in ("floor", "ceil", "round"):
-            rounding: Any = {"floor": np.floor, "ceil": np.ceil, "round": np.round}[name]
-            f0 = fns[0]
-            return (lambda env: rounding(f0(env)).astype(np.int64)), "int"
+            return self.op(f"np.{name}({{0}}).astype(_i64)", args[:1], "int")
         if name in ("sgn", "sign"):
-            f0 = fns[0]
-            return (lambda env: np.sign(f0(env)).astype(np.int64)), "int"
+            return self.op("_sign({0}).astype(_i64)", args[:1], "int")
         if name == "abs":
-            f0 = fns[0]
-            out = "int" if types[0] == "bool" else types[0]
-            return (lambda env: np.abs(f0(env))), out
-        f0, f1 = fns[0], fns[1]
+            return self.op("_abs({0})", args[:1], "int" if types[0] == "bool" else types[0])
+        pair = args[:2]
         out = "real" if "real" in types else "int"
         if name == "min":
-            return (lambda env: np.minimum(f0(env), f1(env))), out
+            return self.op("_minimum({0}, {1})", pair, out, bounds=_bounds_min)
         if name == "max":
-            return (lambda env: np.maximum(f0(env), f1(env))), out
+            return self.op("_maximum({0}, {1})", pair, out, bounds=_bounds_max)
         if name == "pow":
-            return (lambda env: np.power(np.asarray(f0(env), dtype=np.float64), f1(env))), "real"
+            return self.op("_power({0}.astype(_f64, copy=False), {1})", pair, "real")
         if name == "log":
-            return (lambda env: np.log(f0(env)) / np.log(f1(env))), "real"
+            return self.op("_log({0}) / _log({1})", pair, "real")
         if name == "hypot":
-            return (lambda env: np.hypot(f0(env), f1(env))), "real"
+            return self.op("_hypot({0}, {1})", pair, "real")
         if name in ("mod", "fmod"):
-            return (lambda env: np.fmod(f0(env), f1(env))), "real" if name == "fmod" else out
+            return self.op("_fmod({0}, {1})", pair, "real" if name == "fmod" else out)
         if name == "div":
-            return (lambda env: np.trunc(np.true_divide(f0(env), f1(env))).astype(np.int64)), "int"
+            return self.op("_trunc(_div({0}, {1})).astype(_i64)", pair, "int")
         raise SimulationError(f"{e.loc}: function '{name}' is not supported by the simulator")
 
-    def _Distribution(self, e: A.Distribution, scope: Scope, hint: str | None) -> tuple[Fn, str]:
+    # -- distributions -----------------------------------------------
+
+    def _Distribution(self, e: A.Distribution, scope: Scope, hint: str | None) -> _Node:
         name = e.name
         if name == "KronDelta":
             return self.compile(e.args[0], scope, hint)
         if name == "DiracDelta":
-            f0, _ = self.numeric(e.args[0], scope)
-            return (lambda env: np.asarray(f0(env), dtype=np.float64)), "real"
-        fns = [self.numeric(a, scope)[0] for a in e.args]
+            x = self.numeric(e.args[0], scope)
+            return self.op("{0}.astype(_f64, copy=False)", [x], "real", view=True)
+        params = [self.numeric(a, scope) for a in e.args]
         where = f"{e.loc}: {name}"
         # one independent draw per batch element and per grounding of every
         # variable in scope, whatever the parameters depend on
         full = self.scope_shape(scope)
-
-        def shape(env: _Env, *params: Array) -> tuple[int, ...]:
-            return (env.batch,) + full
-
-        def rng(env: _Env) -> np.random.Generator:
-            if env.rng is None:
-                raise SimulationError(f"{where}: a random draw needs a numpy Generator (rng)")
-            return env.rng
-
+        # drawn batch first, as (B, *full) in C order, whatever the layout
+        # here: the stream does not depend on how values are laid out
+        shape = _shape_code(full)
+        rank = 1 + len(full)
+        last, first = _batch_last(rank), _batch_first(rank)
         if name == "Bernoulli":
-            (fp,) = fns
-
-            def bernoulli(env: _Env) -> Array:
-                p = fp(env)
-                if np.any((p < 0) | (p > 1)):
-                    raise SimulationError(f"{where} probability outside [0, 1]: {_bad(p, (p < 0) | (p > 1))}")
-                return rng(env).random(shape(env, p)) < p  # type: ignore[no-any-return]
-
-            return bernoulli, "bool"
+            (p,) = params
+            self._check(p, lambda v: (v < 0) | (v > 1), "_cnz(_lt({0}, 0.0)) or _cnz(_gt({0}, 1.0))",
+                        _param_error(where, "probability outside [0, 1]", lambda v: (v < 0) | (v > 1)))  # fmt: skip
+            self.code.draws.append(where)
+            if self.large and full:
+                # laid out batch last (what follows reads it many times)
+                text = f"_lt(rng.random({shape}){last}, {p.code}, order='C')"
+            else:
+                text = f"rng.random({shape}){last} < {p.code}"
+            return self.emit_value(text, (*full, 1), np.bool_, "bool")
         if name == "Normal":
-            fm, fv = fns
+            m, v = params
+            self._check(v, lambda x: x < 0, "_cnz(_lt({0}, 0))", _param_error(where, "variance is negative", lambda x: x < 0))
+            sd = self.op("_sqrt({0})", [v], "real")
+            self.code.draws.append(where)
+            # loc + scale * z: what rng.normal(loc, scale) computes, draw for
+            # draw, without its slow per-element broadcasting loop
+            z = self.emit_value(self.batch_last(f"rng.standard_normal({shape})", rank), (*full, 1), np.float64, "real")
+            return self.op("_add({0}, _mul({1}, {2}))", [m, sd, z], "real")
+        sampler = _sampler(name, where)
+        if sampler is None:
+            raise SimulationError(f"{where} is not supported by the simulator")
+        draw, out = sampler
+        self.code.draws.append(where)
+        args = ", ".join(p.code + first for p in params)
+        dtype = np.int64 if out == "int" else np.float64
+        return self.emit_value(self.batch_last(f"{self.aux(draw)}(rng, {shape}, {args})", rank), (*full, 1), dtype, out)
 
-            def normal(env: _Env) -> Array:
-                m, v = fm(env), fv(env)
-                if np.any(v < 0):
-                    raise SimulationError(f"{where} variance is negative: {_bad(v, v < 0)}")
-                return rng(env).normal(m, np.sqrt(v), shape(env, m, v))  # type: ignore[no-any-return]
+    def _check(
+        self, x: _Node, bad: Callable[[Array], Array], test: str, fail: Callable[[Array], None]
+    ) -> None:
+        """A parameter check: when the simulator is built if `x` is known
+        (a statement that raises at run time only if it fails), else one
+        test over the whole array at run time."""
+        if x.value is not None:
+            with np.errstate(all="ignore"):
+                failed = bool(np.any(bad(x.value)))
+            if failed:
+                self.fail(fail, x.code)
+            return
+        b = self.bounds_of(x)
+        if b is not None and not np.any(bad(b[0])) and not np.any(bad(b[1])):
+            return  # every value it can take is valid (for an interval condition)
+        with self.code.block(f"if {test.format(x.code)}:"):
+            self.fail(fail, x.code)
 
-            return normal, "real"
-        if name == "Uniform":
-            fl, fu = fns
-
-            def uniform(env: _Env) -> Array:
-                lo, hi = fl(env), fu(env)
-                if np.any(lo > hi):
-                    raise SimulationError(f"{where} lower bound above upper bound")
-                return rng(env).uniform(lo, hi, shape(env, lo, hi))  # type: ignore[no-any-return]
-
-            return uniform, "real"
-        if name == "Exponential":
-            (fs,) = fns
-
-            def exponential(env: _Env) -> Array:
-                s = fs(env)
-                if np.any(s <= 0):
-                    raise SimulationError(f"{where} mean must be positive: {_bad(s, s <= 0)}")
-                return rng(env).exponential(s, shape(env, s))  # type: ignore[no-any-return]
-
-            return exponential, "real"
-        if name == "Poisson":
-            (fl,) = fns
-
-            def poisson(env: _Env) -> Array:
-                lam = fl(env)
-                if np.any(lam < 0):
-                    raise SimulationError(f"{where} mean must not be negative: {_bad(lam, lam < 0)}")
-                return rng(env).poisson(lam, shape(env, lam)).astype(np.int64)  # type: ignore[no-any-return]
-
-            return poisson, "int"
-        two: dict[str, tuple[Callable[..., Array], str, Callable[[Array, Array], Array]]] = {
-            "Gamma": (lambda g, a, b, s: g.gamma(a, b, s), "real", lambda a, b: (a <= 0) | (b <= 0)),
-            "Weibull": (lambda g, a, b, s: b * g.weibull(a, s), "real", lambda a, b: (a <= 0) | (b <= 0)),
-            "Beta": (lambda g, a, b, s: g.beta(a, b, s), "real", lambda a, b: (a <= 0) | (b <= 0)),
-            "Binomial": (lambda g, n, p, s: g.binomial(n, p, s).astype(np.int64), "int", lambda n, p: (n < 0) | (p < 0) | (p > 1)),
-            "NegativeBinomial": (lambda g, n, p, s: g.negative_binomial(n, p, s).astype(np.int64), "int", lambda n, p: (n <= 0) | (p <= 0) | (p > 1)),
-            "Pareto": (lambda g, a, b, s: b * (1 + g.pareto(a, s)), "real", lambda a, b: (a <= 0) | (b <= 0)),
-            "Gumbel": (lambda g, a, b, s: g.gumbel(a, b, s), "real", lambda a, b: b <= 0),
-            "Laplace": (lambda g, a, b, s: g.laplace(a, b, s), "real", lambda a, b: b <= 0),
-            "Cauchy": (lambda g, a, b, s: a + b * g.standard_cauchy(s), "real", lambda a, b: b <= 0),
-            "Gompertz": (lambda g, a, b, s: np.log(1 - np.log(1 - g.random(s)) / a) / b, "real", lambda a, b: (a <= 0) | (b <= 0)),
-            "Kumaraswamy": (lambda g, a, b, s: (1 - (1 - g.random(s)) ** (1 / b)) ** (1 / a), "real", lambda a, b: (a <= 0) | (b <= 0)),
-        }
-        if name in two:
-            draw, out, invalid = two[name]
-            f1, f2 = fns
-
-            def sample2(env: _Env) -> Array:
-                a, b = f1(env), f2(env)
-                bad = invalid(np.asarray(a), np.asarray(b))
-                if np.any(bad):
-                    raise SimulationError(f"{where} parameters outside its domain")
-                return draw(rng(env), a, b, shape(env, a, b))
-
-            return sample2, out
-        one: dict[str, tuple[Callable[..., Array], str, Callable[[Array], Array]]] = {
-            "Geometric": (lambda g, p, s: g.geometric(p, s).astype(np.int64), "int", lambda p: (p <= 0) | (p > 1)),
-            "Student": (lambda g, d, s: g.standard_t(d, s), "real", lambda d: d <= 0),
-            "ChiSquare": (lambda g, d, s: g.chisquare(d, s), "real", lambda d: d <= 0),
-        }
-        if name in one:
-            draw1, out, invalid1 = one[name]
-            (f1,) = fns
-
-            def sample1(env: _Env) -> Array:
-                a = f1(env)
-                if np.any(invalid1(np.asarray(a))):
-                    raise SimulationError(f"{where} parameter outside its domain")
-                return draw1(rng(env), a, shape(env, a))
-
-            return sample1, out
-        raise SimulationError(f"{where} is not supported by the simulator")
-
-    def _Discrete(self, e: A.Discrete, scope: Scope, hint: str | None) -> tuple[Fn, str]:
+    def _Discrete(self, e: A.Discrete, scope: Scope, hint: str | None) -> _Node:
         if e.count is not None:
             raise SimulationError(f"{e.loc}: {e.name} is not supported by the simulator")
         t = e.type
         labels = []
-        probs: list[Fn | None] = []
+        probs: list[_Node | None] = []
         for dc in e.cases:
             name = dc.label.name  # type: ignore[union-attr]
             if t in self.codes and name not in self.codes[t] and "@" + name in self.codes[t]:
                 name = "@" + name
             labels.append(self.code_of(name, t)[0])
-            probs.append(None if dc.prob is None else self.numeric(dc.prob, scope)[0])
+            probs.append(None if dc.prob is None else self.numeric(dc.prob, scope))
         codes = np.array(labels, dtype=np.int64)
         normalise = e.name == "UnnormDiscrete"
         where = f"{e.loc}: {e.name}"
         draw_shape = self.scope_shape(scope)
+        shape = _shape_code(draw_shape)
+        rank = 1 + len(draw_shape)
+        to_first = _batch_first(rank)
+        self.code.draws.append(where)
+        out_shape = (*draw_shape, 1)
+        if all(p is None or p.value is not None for p in probs):
+            # computed batch first, as the draws are made
+            values = [None if p is None else np.asarray(p.value)[..., 0][None] for p in probs]
+            fixed = _fixed_categorical(values, (1, *draw_shape), normalise)
+            if fixed is not None:
+                cum, total = fixed
+                k = cum.shape[-1]
+                table = "" if np.array_equal(codes, np.arange(k)) else self.aux(codes)
+                flat = cum.reshape(-1, k)
+                if (flat == flat[0]).all() and (np.diff(flat[0]) >= 0).all():
+                    # the same distribution everywhere: a sorted search
+                    idx = f"_searchsorted({self.aux(flat[0].copy())}, rng.random({shape}) * {self.aux(total.reshape(-1)[0].copy())}, 'right')"
+                else:
+                    idx = f"(({self.aux(cum)} <= rng.random({shape})[..., None] * {self.aux(total)}).sum(axis=-1))"
+                text = f"_minimum({idx}, {k - 1})"
+                if table:
+                    text = f"{table}[{text}]"
+                return self.emit_value(self.batch_last(text, rank), out_shape, np.int64, t)
+        sampler = _discrete_sampler(codes, normalise, where, draw_shape)
+        args = ", ".join("None" if p is None else p.code + to_first for p in probs)
+        return self.emit_value(self.batch_last(f"{self.aux(sampler)}(rng, B, [{args}])", rank), out_shape, np.int64, t)
 
-        def discrete(env: _Env) -> Array:
-            ps = [None if f is None else np.asarray(f(env), dtype=np.float64) for f in probs]
-            known = [p for p in ps if p is not None]
-            shp = (env.batch,) + draw_shape
-            full = [np.broadcast_to(p, shp) if p is not None else None for p in ps]
-            total_known = sum(p for p in full if p is not None) if known else np.zeros(shp)
-            stacked = np.stack(
-                [p if p is not None else np.maximum(1.0 - total_known, 0.0) for p in full], axis=-1
-            )
-            if np.any(stacked < -1e-12):
-                raise SimulationError(f"{where} has a negative probability")
-            return codes[_draw_categorical(stacked, normalise, where, env.rng)]  # type: ignore[no-any-return]
-
-        return discrete, t
-
-    def _DiscreteOver(self, e: A.DiscreteOver, scope: Scope, hint: str | None) -> tuple[Fn, str]:
+    def _DiscreteOver(self, e: A.DiscreteOver, scope: Scope, hint: str | None) -> _Node:
         if len(e.params) != 1:
             raise SimulationError(f"{e.loc}: {e.name}_ takes one variable")
         inner = scope + ((e.params[0].name, e.params[0].type),)
-        wf, _ = self.numeric(e.body, inner)
+        w = self.numeric(e.body, inner)
         size = self.sizes[e.params[0].type]
-        normalise = e.name == "UnnormDiscrete"
         where = f"{e.loc}: {e.name}_"
         full = self.scope_shape(scope)
+        sampler = _discrete_over_sampler(size, e.name == "UnnormDiscrete", where, full)
+        self.code.draws.append(where)
+        # the weights batch first, the variable's axis last, as the draws are made
+        text = self.batch_last(f"{self.aux(sampler)}(rng, B, {w.code}{_batch_first(len(full) + 2)})", len(full) + 1)
+        return self.emit_value(text, (*full, 1), np.int64, e.params[0].type)
 
-        def discrete_over(env: _Env) -> Array:
-            w = np.asarray(wf(env), dtype=np.float64)
-            w = np.broadcast_to(w, (env.batch,) + full + (size,))
-            if np.any(w < 0):
-                raise SimulationError(f"{where} has a negative probability")
-            return _draw_categorical(w, normalise, where, env.rng)
-
-        return discrete_over, e.params[0].type
-
-    def _unsupported(self, e: A.Expr, scope: Scope, hint: str | None) -> tuple[Fn, str]:
+    def _unsupported(self, e: A.Expr, scope: Scope, hint: str | None) -> _Node:
         raise SimulationError(f"{e.loc}: {type(e).__name__} is not supported by the simulator")
 
     _MatrixOp = _unsupported
     _VectorDistribution = _unsupported
+
+
+# Bounds of operations from their arguments' ((lo, hi) pairs), computed with
+# the same floating-point operations as the values; None where unknown.
+
+Bounds = tuple[Array, Array]
+
+
+def _bounds_add(a: Bounds, b: Bounds) -> Bounds:
+    return a[0] + b[0], a[1] + b[1]
+
+
+def _bounds_sub(a: Bounds, b: Bounds) -> Bounds:
+    return a[0] - b[1], a[1] - b[0]
+
+
+def _bounds_mul(a: Bounds, b: Bounds) -> Bounds:
+    c = [a[0] * b[0], a[0] * b[1], a[1] * b[0], a[1] * b[1]]
+    return np.minimum(np.minimum(c[0], c[1]), np.minimum(c[2], c[3])), np.maximum(
+        np.maximum(c[0], c[1]), np.maximum(c[2], c[3])
+    )
+
+
+def _bounds_div(a: Bounds, b: Bounds) -> Bounds | None:
+    if not ((b[0] > 0) | (b[1] < 0)).all():
+        return None  # the divisor may be 0
+    c = [a[0] / b[0], a[0] / b[1], a[1] / b[0], a[1] / b[1]]
+    return np.minimum(np.minimum(c[0], c[1]), np.minimum(c[2], c[3])), np.maximum(
+        np.maximum(c[0], c[1]), np.maximum(c[2], c[3])
+    )
+
+
+def _bounds_same(a: Bounds) -> Bounds:
+    return a
+
+
+def _bounds_trunc(a: Bounds) -> Bounds:
+    return np.trunc(a[0]), np.trunc(a[1])
+
+
+def _bounds_neg(a: Bounds) -> Bounds:
+    return -a[1], -a[0]
+
+
+def _bounds_min(a: Bounds, b: Bounds) -> Bounds:
+    return np.minimum(a[0], b[0]), np.minimum(a[1], b[1])
+
+
+def _bounds_max(a: Bounds, b: Bounds) -> Bounds:
+    return np.maximum(a[0], b[0]), np.maximum(a[1], b[1])
+
+
+def _bounds_either(cond: Bounds, a: Bounds, b: Bounds) -> Bounds:
+    return np.minimum(a[0], b[0]), np.maximum(a[1], b[1])
+
+
+def _bounds_exp(a: Bounds) -> Bounds:
+    # exp is not correctly rounded: a few ulps of slack each way
+    lo, hi = np.exp(a[0]), np.exp(a[1])
+    for _ in range(4):
+        lo, hi = np.nextafter(lo, -np.inf), np.nextafter(hi, np.inf)
+    return np.maximum(lo, 0.0), hi
+
+
+def _bounded(node: _Node, bounds: Bounds | None) -> _Node:
+    if bounds is not None and all((np.abs(x) < 2.0**52).all() for x in bounds):
+        node.bounds = bounds
+    return node
+
+
+def _leaves(e: A.Expr, chain: str) -> list[A.Expr]:
+    """The operands of a chain of one binary operator, left to right."""
+    if isinstance(e, A.Binary) and e.op == chain:
+        return _leaves(e.left, chain) + _leaves(e.right, chain)
+    return [e]
+
+
+def _missing(name: str) -> None:
+    raise SimulationError(f"'{name}' has no value where it is read")
+
+
+def _param_error(where: str, what: str, bad: Callable[[Array], Array]) -> Callable[[Array], None]:
+    def fail(values: Array) -> None:
+        v = np.asarray(values)
+        mask = bad(v)
+        if np.any(mask):
+            raise SimulationError(f"{where} {what}: {_bad(v, mask)}")
+
+    return fail
+
+
+def _sampler(name: str, where: str) -> tuple[Callable[..., Array], str] | None:
+    """A draw function (rng, shape, *params) that checks its parameters,
+    and its value type; None for a distribution not simulated."""
+    if name == "Uniform":
+
+        def uniform(g: np.random.Generator, shape: tuple[int, ...], lo: Array, hi: Array) -> Array:
+            if np.any(lo > hi):
+                raise SimulationError(f"{where} lower bound above upper bound")
+            return g.uniform(lo, hi, shape)
+
+        return uniform, "real"
+    if name == "Exponential":
+
+        def exponential(g: np.random.Generator, shape: tuple[int, ...], s: Array) -> Array:
+            if np.any(s <= 0):
+                raise SimulationError(f"{where} mean must be positive: {_bad(s, s <= 0)}")
+            return g.exponential(s, shape)
+
+        return exponential, "real"
+    if name == "Poisson":
+
+        def poisson(g: np.random.Generator, shape: tuple[int, ...], lam: Array) -> Array:
+            if np.any(lam < 0):
+                raise SimulationError(f"{where} mean must not be negative: {_bad(lam, lam < 0)}")
+            return g.poisson(lam, shape).astype(np.int64)
+
+        return poisson, "int"
+    two: dict[str, tuple[Callable[..., Array], str, Callable[[Array, Array], Array]]] = {
+        "Gamma": (lambda g, a, b, s: g.gamma(a, b, s), "real", lambda a, b: (a <= 0) | (b <= 0)),
+        "Weibull": (lambda g, a, b, s: b * g.weibull(a, s), "real", lambda a, b: (a <= 0) | (b <= 0)),
+        "Beta": (lambda g, a, b, s: g.beta(a, b, s), "real", lambda a, b: (a <= 0) | (b <= 0)),
+        "Binomial": (lambda g, n, p, s: g.binomial(n, p, s).astype(np.int64), "int", lambda n, p: (n < 0) | (p < 0) | (p > 1)),
+        "NegativeBinomial": (lambda g, n, p, s: g.negative_binomial(n, p, s).astype(np.int64), "int", lambda n, p: (n <= 0) | (p <= 0) | (p > 1)),
+        "Pareto": (lambda g, a, b, s: b * (1 + g.pareto(a, s)), "real", lambda a, b: (a <= 0) | (b <= 0)),
+        "Gumbel": (lambda g, a, b, s: g.gumbel(a, b, s), "real", lambda a, b: b <= 0),
+        "Laplace": (lambda g, a, b, s: g.laplace(a, b, s), "real", lambda a, b: b <= 0),
+        "Cauchy": (lambda g, a, b, s: a + b * g.standard_cauchy(s), "real", lambda a, b: b <= 0),
+        "Gompertz": (lambda g, a, b, s: np.log(1 - np.log(1 - g.random(s)) / a) / b, "real", lambda a, b: (a <= 0) | (b <= 0)),
+        "Kumaraswamy": (lambda g, a, b, s: (1 - (1 - g.random(s)) ** (1 / b)) ** (1 / a), "real", lambda a, b: (a <= 0) | (b <= 0)),
+    }  # fmt: skip
+    if name in two:
+        draw2, out2, invalid2 = two[name]
+
+        def sample2(g: np.random.Generator, shape: tuple[int, ...], a: Array, b: Array) -> Array:
+            if np.any(invalid2(np.asarray(a), np.asarray(b))):
+                raise SimulationError(f"{where} parameters outside its domain")
+            return draw2(g, a, b, shape)
+
+        return sample2, out2
+    one: dict[str, tuple[Callable[..., Array], str, Callable[[Array], Array]]] = {
+        "Geometric": (lambda g, p, s: g.geometric(p, s).astype(np.int64), "int", lambda p: (p <= 0) | (p > 1)),
+        "Student": (lambda g, d, s: g.standard_t(d, s), "real", lambda d: d <= 0),
+        "ChiSquare": (lambda g, d, s: g.chisquare(d, s), "real", lambda d: d <= 0),
+    }  # fmt: skip
+    if name in one:
+        draw1, out1, invalid1 = one[name]
+
+        def sample1(g: np.random.Generator, shape: tuple[int, ...], a: Array) -> Array:
+            if np.any(invalid1(np.asarray(a))):
+                raise SimulationError(f"{where} parameter outside its domain")
+            return draw1(g, a, shape)
+
+        return sample1, out1
+    return None
+
+
+def _stack_probabilities(ps: list[Array | None], shape: tuple[int, ...]) -> Array:
+    """Discrete's probabilities along a last axis; the case without one
+    takes what the others leave (never below 0)."""
+    full = [np.broadcast_to(np.asarray(p, dtype=np.float64), shape) if p is not None else None for p in ps]
+    known = [p for p in full if p is not None]
+    total_known = sum(known) if known else np.zeros(shape)
+    return np.stack([p if p is not None else np.maximum(1.0 - total_known, 0.0) for p in full], axis=-1)
+
+
+def _fixed_categorical(
+    ps: list[Array | None], shape: tuple[int, ...], normalise: bool
+) -> tuple[Array, Array] | None:
+    """Cumulative weights and their totals for probabilities known when the
+    simulator is built, or None if they are not valid (the draw then raises
+    at run time, as it should)."""
+    with np.errstate(all="ignore"):
+        stacked = _stack_probabilities(ps, shape)
+        if np.any(stacked < -1e-12):
+            return None
+        total = stacked.sum(axis=-1)
+        if normalise:
+            weights = stacked / total[..., None]
+        elif np.any(np.abs(total - 1.0) > 1e-6):
+            return None
+        else:
+            weights = stacked
+        if not np.all(np.isfinite(weights)):
+            return None
+        cum = np.cumsum(weights, axis=-1)
+    return cum, cum[..., -1:].copy()
+
+
+def _discrete_sampler(
+    codes: Array, normalise: bool, where: str, draw_shape: tuple[int, ...]
+) -> Callable[..., Array]:
+    def discrete(rng: np.random.Generator, batch: int, ps: list[Array | None]) -> Array:
+        stacked = _stack_probabilities(ps, (batch, *draw_shape))
+        if np.any(stacked < -1e-12):
+            raise SimulationError(f"{where} has a negative probability")
+        return codes[_draw_categorical(stacked, normalise, where, rng)]  # type: ignore[no-any-return]
+
+    return discrete
+
+
+def _discrete_over_sampler(
+    size: int, normalise: bool, where: str, full: tuple[int, ...]
+) -> Callable[..., Array]:
+    def discrete_over(rng: np.random.Generator, batch: int, weights: Array) -> Array:
+        w = np.broadcast_to(np.asarray(weights, dtype=np.float64), (batch, *full, size))
+        if np.any(w < 0):
+            raise SimulationError(f"{where} has a negative probability")
+        return _draw_categorical(w, normalise, where, rng)
+
+    return discrete_over
 
 
 def _draw_categorical(
@@ -667,17 +1842,43 @@ def _order_cpfs(model: Model) -> list[str]:
     return order
 
 
-_WINDOW = 64  # candidate additions tested per batched call in random_actions
+_WINDOW = 32  # candidates per state tested in one batched call in random_actions
+_TRIAL_BUDGET = 4_000_000  # action values copied per state and batched call, at most
+# rddlsim's RandomConcurrentPolicy takes at most this many actions (its
+# MAX_CONCURRENT_ACTIONS), whatever max-nondef-actions allows
+RANDOM_MAX_CONCURRENT = 20
+_SPARSE_MAX = 12  # row gathers, at most, instead of a matrix product in a contraction
+_LARGE_BATCH = 16  # batches from this size on step with code written for large batches
+
+
+class _Order:
+    """A random order of n items for each state of a batch: the items by
+    increasing random key (ties by index), found only as far as it is read
+    (a partial sort), as the random policy reads few of them."""
+
+    def __init__(self, keys: Array):
+        self.keys = keys
+        self.known = np.zeros((keys.shape[0], 0), dtype=np.intp)
+
+    def at(self, rows: Any, positions: Any) -> Any:
+        """The items at `positions` of the order of the states `rows`."""
+        needed = int(np.max(positions)) + 1 if np.size(positions) else 0
+        if needed > self.known.shape[1]:
+            n = self.keys.shape[1]
+            m = min(n, max(needed, 2 * self.known.shape[1], 64))
+            if m >= n:
+                self.known = np.argsort(self.keys, axis=1, kind="stable")
+            else:
+                part = np.argpartition(self.keys, m - 1, axis=1)[:, :m]
+                within = np.lexsort((part, np.take_along_axis(self.keys, part, axis=1)), axis=-1)
+                self.known = np.take_along_axis(part, within, axis=1)
+        return self.known[rows, positions]
 
 
 def _comb(n: int, k: int) -> int:
     from math import comb
 
     return comb(n, k)
-
-
-def _constant_fn(arr: Array) -> Fn:
-    return lambda env: arr
 
 
 def _text(expr: A.Expr, limit: int = 160) -> str:
@@ -706,9 +1907,6 @@ def _bad(values: Array, mask: Array) -> str:
 # --------------------------------------------------------- simulator
 
 
-_DTYPES = {"bool": np.bool_, "int": np.int64, "real": np.float64}
-
-
 class Simulator:
     """The forward model of one RDDL instance, stepping batches of states.
 
@@ -719,7 +1917,7 @@ class Simulator:
 
     def __init__(self, model: Model):
         self.model = model
-        c = self._c = _Compiler(model)
+        self._c = _Compiler(model)
         self.state_fluents = model.fluents(STATE)
         self.action_fluents = model.fluents(ACTION)
         self.observ_fluents = model.fluents(OBSERV)
@@ -728,36 +1926,27 @@ class Simulator:
 
         self._nf_values = {p.name: self._initial_array(p)[None] for p in self.non_fluents}
         self._defaults = {p.name: self._default_array(p) for p in self.action_fluents}
-
-        def cpf(p: PVariable) -> Fn:
-            cp = model.cpfs[p.name]
-            scope = tuple(zip(cp.params, p.params, strict=True))
-            fn, _ = c.compile(cp.expr, scope, p.range)
-            shape = c.shape_of(p)
-            dtype = self._dtype(p)
-
-            def run(env: _Env) -> Array:
-                # an owned, writable array: a broadcast view would be read-only,
-                # and a cpf like KronDelta(p(?x)) would alias the current state
-                return np.array(np.broadcast_to(fn(env), (env.batch,) + shape), dtype=dtype)
-
-            return run
+        self._initial = {p.name: self._initial_array(p) for p in self.state_fluents}
+        self._action_names = [p.name for p in self.action_fluents]
+        self._noop_views: dict[int, dict[str, Array]] = {}
 
         # Every cpf in an order that respects what it reads: by level and
         # kind (interm, next state, observation) where possible, as rddlsim
         # does, and by dependency where a domain reads a fluent computed
         # later (pyRDDLGym's levels-free style).
         self._cpf_order = _order_cpfs(model)
-        self._cpf_fns = [(key, cpf(model.pvariables[key.rstrip("'")])) for key in self._cpf_order]
-        self._state_keys = {p.name + "'": p.name for p in self.state_fluents}
-        self._observ_names = {p.name for p in self.observ_fluents}
-        reward = model.reward
-        self._reward_fn = c.numeric(reward, ())[0] if reward is not None else None
         dom = model.domain
-        self._preconditions = [(e, c.numeric(e, ())[0]) for e in dom.action_preconditions]
-        self._preconditions += [(e, c.numeric(e, ())[0]) for e in dom.state_action_constraints]
-        self._invariants = [(e, c.numeric(e, ())[0]) for e in dom.state_invariants]
-        self._terminations = [(e, c.numeric(e, ())[0]) for e in dom.termination]
+        self._preconditions = [*dom.action_preconditions, *dom.state_action_constraints]
+        self._invariants = list(dom.state_invariants)
+        self._terminations = list(dom.termination)
+        self._nf_nodes = {
+            p.name: (self._c.const(self._nf_values[p.name][0][..., None], p.range), None)
+            for p in self.non_fluents
+        }
+        self._lock = threading.Lock()  # the compiler is not reentrant
+        self._step_small = self._build_step(large=False)
+        # compiled when first needed
+        self._compiled: dict[str, Callable[..., Any]] = {}
 
     # -- values ------------------------------------------------------
 
@@ -784,29 +1973,266 @@ class Simulator:
 
     def initial_state(self, batch: int = 1) -> State:
         """The instance's initial state, repeated `batch` times."""
+        # laid out batch last in memory, as `step` makes its states
         return State(
-            {
-                p.name: np.repeat(self._initial_array(p)[None], batch, axis=0)
-                for p in self.state_fluents
-            }
+            {k: np.moveaxis(np.repeat(v[..., None], batch, axis=-1), -1, 0) for k, v in self._initial.items()}
         )
 
     def noop(self, batch: int = 1) -> dict[str, Array]:
         """Every action at its default, for a batch."""
         return {k: np.repeat(v[None], batch, axis=0) for k, v in self._defaults.items()}
 
+    # -- compiling -----------------------------------------------------
+
+    def _bind(self, state: Mapping[str, _Node] | None = None) -> None:
+        """What pvariable names mean in the function being written: the
+        non-fluents' values, the state (`S`, or the given next state) and
+        the actions (`A`)."""
+        c = self._c
+        c.context += 1
+        c.values = dict(self._nf_nodes)
+        # arrays come batch first (B, *params); the generated code works
+        # batch last (*params, B): a view, and no copy where the array was
+        # made by a step (its memory is batch last)
+        # (for large batches made contiguous: operations on arrays of mixed
+        # layouts are several times slower, and a copy costs about one)
+        def read(source: str, arity: int) -> str:
+            text = source + _batch_last(arity + 1)
+            return f"_contiguous({text})" if c.large and arity else text
+
+        for i, p in enumerate(self.state_fluents):
+            if state is not None:
+                c.values[p.name] = (state[p.name], None)
+            else:
+                node = _Node(f"s{i}", (*c.shape_of(p), 1), np.dtype(self._dtype(p)), p.range, True)
+                c.values[p.name] = (node, read(f"S[{p.name!r}]", p.arity))
+        for i, p in enumerate(self.action_fluents):
+            node = _Node(f"a{i}", (*c.shape_of(p), 1), np.dtype(self._dtype(p)), p.range, True)
+            c.values[p.name] = (node, read(f"A[{p.name!r}]", p.arity))
+
+    def _output(self, node: _Node, shape: tuple[int, ...], dtype: Any, used: set[str]) -> _Node:
+        """`node` as an array of its own, shaped (*shape, B): the value
+        itself where this step allocated it and nothing else returns it,
+        else a copy."""
+        c = self._c
+        dtype = np.dtype(dtype)
+        full = (*shape, 1)
+        if node.batched and node.shape == full and node.dtype == dtype and node.owner and node.owner not in used:
+            used.add(node.owner)
+            if not c.large:
+                return node
+            # batch last in memory too (a copy only where it is not)
+            name = c.code.temp()
+            c.code.emit(f"{name} = _contiguous({node.code})")
+            return _Node(name, full, dtype, node.rtype, True, owner=node.owner)
+        name = c.code.temp()
+        if node.batched and node.shape == full:
+            order = ", order='C'" if c.large else ""
+            c.code.emit(f"{name} = {node.code}.astype({_DTYPE_CODE[dtype]}{order})")
+        else:
+            c.code.emit(f"{name} = _empty({_last_shape_code(shape)}, {_DTYPE_CODE[dtype]})")
+            c.code.emit(f"{name}[...] = {node.code}")
+        used.add(name)
+        return _Node(name, full, dtype, node.rtype, True, owner=name)
+
+    def _emit_constraints(self) -> None:
+        """Statements that raise `SimulationError` for the first violated
+        constraint: max-nondef-actions, then the preconditions in order."""
+        c = self._c
+        limit = self.model.max_nondef_actions
+        if limit is not None and self.action_fluents:
+            terms = []
+            for p in self.action_fluents:
+                a = c.ref(p, False)
+                d = self._defaults[p.name]
+                if p.range == "bool" and not d.any():
+                    terms.append(f"_cnz({a.code})")
+                else:
+                    terms.append(f"_cnz(_ne({a.code}, {c.aux(d[..., None])}))")
+            # the total over the batch bounds each state's count
+            with c.code.block(f"if {' + '.join(terms)} > {limit}:"):
+                c.fail(self._fail_nondef, "A", "B")
+        for k, expr in enumerate(self._preconditions):
+            holds = c.numeric(expr, ())
+            if holds.value is not None:
+                if not np.asarray(holds.value, dtype=bool).all():
+                    c.fail(self._fail_precondition, str(k), holds.code, "A", "B")
+                continue
+            with c.code.block(f"if _cnz({holds.code}) != {holds.code}.size:"):
+                c.fail(self._fail_precondition, str(k), holds.code, "A", "B")
+
+    def _step_fn(self, batch: int) -> Callable[..., Any]:
+        """The step function for this batch size (both make the same draws
+        and compute the same values)."""
+        if batch < _LARGE_BATCH:
+            return self._step_small
+        return self._function("_step_large")
+
+    def _build_step(self, large: bool) -> Callable[..., Any]:
+        c = self._c
+        model = self.model
+        code = c.begin("_step_large" if large else "_step", "S, A, B, rng, check", large)
+        self._bind()
+        if self._preconditions or model.max_nondef_actions is not None:
+            with code.block("if check:"):
+                self._emit_constraints()
+        used: set[str] = set()
+        nxt: dict[str, _Node] = {}
+        obs: dict[str, _Node] = {}
+        for key in self._cpf_order:
+            p = model.pvariables[key.rstrip("'")]
+            cp = model.cpfs[p.name]
+            scope = tuple(zip(cp.params, p.params, strict=True))
+            node = c.compile(cp.expr, scope, p.range)
+            shape = c.shape_of(p)
+            dtype = np.dtype(self._dtype(p))
+            if p.kind == STATE:
+                node = nxt[p.name] = self._output(node, shape, dtype, used)
+                c.values[key] = (node, None)
+            elif p.kind == OBSERV:
+                node = obs[p.name] = self._output(node, shape, dtype, used)
+                c.values[p.name] = (node, None)
+            else:
+                # an intermediate value: its type, over every grounding
+                node = c.cast(node, dtype)
+                if node.shape[:-1] != shape:
+                    dims = ", ".join([*map(str, shape), "{0}.shape[-1]"])
+                    node = c.op(f"_broadcast_to({{0}}, ({dims},))", [node], p.range, view=True)
+                c.values[p.name] = (node, None)
+        if model.reward is not None:
+            reward = self._output(c.numeric(model.reward, ()), (), np.float64, used).code
+        else:
+            reward = "_zeros(B)"
+        self._bind({p.name: nxt[p.name] for p in self.state_fluents})
+        if self._invariants:
+            with code.block("if check:"):
+                for k, expr in enumerate(self._invariants):
+                    holds = c.numeric(expr, ())
+                    if holds.value is not None:
+                        if not np.asarray(holds.value, dtype=bool).all():
+                            c.fail(self._fail_invariant, str(k), holds.code, "B")
+                        continue
+                    with code.block(f"if _cnz({holds.code}) != {holds.code}.size:"):
+                        c.fail(self._fail_invariant, str(k), holds.code, "B")
+        code.emit("done = _zeros(B, _bool)")
+        for expr in self._terminations:
+            holds = c.numeric(expr, ())
+            code.emit(f"_lor(done, {holds.code}, out=done)")
+        # returned batch first: views of the batch-last arrays
+        states = "{" + ", ".join(
+            f"{p.name!r}: {nxt[p.name].code}{_batch_first(p.arity + 1)}" for p in self.state_fluents
+        ) + "}"
+        observed = "None"
+        if self.observ_fluents:
+            pv = model.pvariables
+            observed = "{" + ", ".join(
+                f"{k!r}: {v.code}{_batch_first(pv[k].arity + 1)}" for k, v in obs.items()
+            ) + "}"
+        code.emit(f"return {states}, {reward}, {observed}, done")
+        return c.build(code)
+
+    def _function(self, name: str) -> Callable[..., Any]:
+        """A generated function, compiled on first use: `_step_large`,
+        `_legal`, `_legal_large` or `_check`."""
+        fn = self._compiled.get(name)
+        if fn is None:
+            with self._lock:
+                fn = self._compiled.get(name)
+                if fn is None:
+                    if name == "_step_large":
+                        fn = self._build_step(large=True)
+                    else:
+                        fn = self._build_constraints(name, explain=name == "_check", large=name.endswith("_large"))
+                    self._compiled[name] = fn
+        return fn
+
+    def _legal_fn(self, batch: int) -> Callable[..., Any]:
+        """The function of the preconditions' mask for this batch size."""
+        return self._function("_legal" if batch < _LARGE_BATCH else "_legal_large")
+
+    def _build_constraints(self, name: str, explain: bool, large: bool = False) -> Callable[..., Any]:
+        """`explain`: a function that raises for the first violated
+        constraint (max-nondef-actions included); else one that returns
+        the mask of the states where every precondition holds."""
+        c = self._c
+        code = c.begin(name, "S, A, B", large)
+        self._bind()
+        if explain:
+            self._emit_constraints()
+            code.emit("return None")
+            return c.build(code)
+        code.emit("ok = np.ones(B, _bool)")
+        for expr in self._preconditions:
+            holds = c.numeric(expr, ())
+            code.emit(f"_land(ok, {holds.code}, out=ok)")
+        code.emit("return ok")
+        return c.build(code)
+
+    def source(self) -> str:
+        """The generated code of the step, for reading (and debugging)."""
+        return "\n".join(self._c.sources.values())
+
+    # -- failures (called from the generated code) ---------------------
+
+    def _fail_nondef(self, actions: Mapping[str, Array], batch: int) -> None:
+        limit = self.model.max_nondef_actions
+        n = self.count_nondefault(actions, batch)
+        if limit is not None and np.any(n > limit):
+            i = int(np.argmax(n > limit))
+            raise SimulationError(
+                f"{int(n[i])} actions differ from their default, max-nondef-actions is {limit}: "
+                f"{', '.join(self.actions_to_names(actions, i)) or 'noop'}"
+            )
+
+    def _fail_precondition(self, k: int, holds: Array, actions: Mapping[str, Array], batch: int) -> None:
+        expr = self._preconditions[k]
+        ok = np.broadcast_to(np.asarray(holds, dtype=bool).reshape(-1), (batch,))
+        i = int(np.argmin(ok))
+        acts = ", ".join(self.actions_to_names(actions, i)) or "noop"
+        raise SimulationError(
+            f"{expr.loc}: constraint violated (state {i} of the batch): {_text(expr)}; actions: {acts}"
+        )
+
+    def _fail_invariant(self, k: int, holds: Array, batch: int) -> None:
+        expr = self._invariants[k]
+        ok = np.broadcast_to(np.asarray(holds, dtype=bool).reshape(-1), (batch,))
+        raise SimulationError(
+            f"{expr.loc}: state invariant violated (state {int(np.argmin(ok))} of the batch): {_text(expr)}"
+        )
+
     # -- the step ----------------------------------------------------
 
-    def _env(self, state: State, actions: Mapping[str, Array], rng: np.random.Generator | None) -> _Env:
-        batch = state.batch
-        values: dict[str, Array] = dict(self._nf_values)
-        values.update(state.values)
-        for p in self.action_fluents:
-            a = actions.get(p.name)
+    def _noop_view(self, batch: int) -> dict[str, Array]:
+        views = self._noop_views.get(batch)
+        if views is None:
+            if len(self._noop_views) > 16:
+                self._noop_views.clear()
+            views = {k: np.broadcast_to(v, (batch, *v.shape)) for k, v in self._defaults.items()}
+            self._noop_views[batch] = views
+        return views
+
+    def _actions(self, actions: Mapping[str, Array] | None, batch: int) -> dict[str, Array]:
+        """Every action fluent's array, shaped (batch, *params): the given
+        ones, and (read-only) defaults for the others."""
+        if not actions:
+            return self._noop_view(batch)
+        out = {}
+        views = None
+        for name in self._action_names:
+            a = actions.get(name)
             if a is None:
-                a = np.broadcast_to(self._defaults[p.name], (batch,) + self._defaults[p.name].shape)
-            values[p.name] = a
-        return _Env(values, rng, batch)
+                if views is None:
+                    views = self._noop_view(batch)
+                a = views[name]
+            elif type(a) is not np.ndarray or a.ndim == 0 or a.shape[0] != batch:
+                a = np.asarray(a)
+                if a.ndim and a.shape[0] != batch:
+                    a = np.broadcast_to(a, (batch, *a.shape[1:]))
+            out[name] = a
+        return out
+
+    def _env(self, state: State, actions: Mapping[str, Array], rng: np.random.Generator | None) -> _Env:
+        return _Env(state, actions, rng, state.batch)
 
     def count_nondefault(self, actions: Mapping[str, Array], batch: int) -> Array:
         """How many grounded actions differ from their default, per state."""
@@ -822,13 +2248,13 @@ class Simulator:
     def check_actions(self, state: State, actions: Mapping[str, Array]) -> Array:
         """A (batch,) mask of the states where the actions are legal:
         max-nondef-actions, action-preconditions, state-action-constraints."""
-        env = self._env(state, actions, None)
-        ok = np.ones(state.batch, dtype=bool)
+        batch = state.batch
+        ok = np.ones(batch, dtype=bool)
         limit = self.model.max_nondef_actions
         if limit is not None:
-            ok &= self.count_nondefault(actions, state.batch) <= limit
-        for _, fn in self._preconditions:
-            ok &= np.broadcast_to(np.asarray(fn(env), dtype=bool).reshape(-1), (state.batch,))
+            ok &= self.count_nondefault(actions, batch) <= limit
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+            ok &= self._legal_fn(batch)(state.values, self._actions(actions, batch), batch)
         return ok
 
     def step(
@@ -844,55 +2270,17 @@ class Simulator:
         (missing names take their default). With `check`, an illegal action
         or a violated state invariant raises `SimulationError`.
         """
-        actions = actions or {}
         batch = state.batch
-        env = self._env(state, actions, rng)
-        if check:
-            self._check_preconditions(env, actions, batch)
+        acts = self._actions(actions, batch)
         with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-            nxt = {}
-            obs: dict[str, Array] | None = {} if self._observ_names else None
-            for key, fn in self._cpf_fns:
-                value = env.values[key] = fn(env)
-                if key in self._state_keys:
-                    nxt[self._state_keys[key]] = value
-                elif obs is not None and key in self._observ_names:
-                    obs[key] = value
-            if self._reward_fn is not None:
-                reward = np.broadcast_to(np.asarray(self._reward_fn(env), dtype=np.float64).reshape(-1), (batch,)).copy()
-            else:
-                reward = np.zeros(batch)
-            nenv = self._env(State(nxt), actions, None)
-            if check:
-                for expr, fn in self._invariants:
-                    holds = np.broadcast_to(np.asarray(fn(nenv), dtype=bool).reshape(-1), (batch,))
-                    if not holds.all():
-                        raise SimulationError(
-                            f"{expr.loc}: state invariant violated (state {int(np.argmin(holds))} of the batch): {_text(expr)}"
-                        )
-            done = np.zeros(batch, dtype=bool)
-            for _, fn in self._terminations:
-                done |= np.broadcast_to(np.asarray(fn(nenv), dtype=bool).reshape(-1), (batch,))
+            nxt, reward, obs, done = self._step_fn(batch)(state.values, acts, batch, rng, check)
         return Step(State(nxt), reward, obs, done)
 
     def _check_preconditions(self, env: _Env, actions: Mapping[str, Array], batch: int) -> None:
-        limit = self.model.max_nondef_actions
-        if limit is not None:
-            n = self.count_nondefault(actions, batch)
-            if np.any(n > limit):
-                i = int(np.argmax(n > limit))
-                raise SimulationError(
-                    f"{int(n[i])} actions differ from their default, max-nondef-actions is {limit}: "
-                    f"{', '.join(self.actions_to_names(actions, i)) or 'noop'}"
-                )
-        for expr, fn in self._preconditions:
-            holds = np.broadcast_to(np.asarray(fn(env), dtype=bool).reshape(-1), (batch,))
-            if not holds.all():
-                i = int(np.argmin(holds))
-                acts = ", ".join(self.actions_to_names(actions, i)) or "noop"
-                raise SimulationError(
-                    f"{expr.loc}: constraint violated (state {i} of the batch): {_text(expr)}; actions: {acts}"
-                )
+        """Raise `SimulationError` for the first constraint the actions
+        violate (max-nondef-actions, then the preconditions in order)."""
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+            self._function("_check")(env.state.values, self._actions(actions, batch), batch)
 
     # -- action choice ---------------------------------------------
 
@@ -921,71 +2309,121 @@ class Simulator:
         groundings in a random order; each grounding is taken with
         probability 1/2 (with a random non-default value) and kept only if
         the constraints and max-nondef-actions still hold; at most
-        max-nondef-actions are taken."""
+        max-nondef-actions are taken, and (as rddlsim's policy does, for
+        max-nondef-actions = pos-inf) at most `RANDOM_MAX_CONCURRENT`."""
         batch = state.batch
         actions = self.noop(batch)
-        limit = self.model.max_nondef_actions
+        limit = RANDOM_MAX_CONCURRENT
+        if self.model.max_nondef_actions is not None:
+            limit = min(limit, self.model.max_nondef_actions)
         if not self._preconditions:
             return self._random_unconstrained(actions, batch, limit, rng)
         taken = np.zeros(batch, dtype=np.int64)
         for p, flat, order, heads in self._coin_flips(actions, batch, rng):
             n = flat.shape[1]
             values = self._random_value(p, rng, batch * n).reshape(batch, n)
-            # Between two additions the action set does not change, so the
-            # sequential rule (try each flipped grounding in order, keep it if
-            # still legal) takes the first legal one: test a window of
-            # candidates in one batched call instead of one call each.
-            pos = np.zeros(batch, dtype=np.int64)
-            while True:
-                active = pos < n
-                if limit is not None:
-                    active &= taken < limit
-                if not active.any():
-                    break
-                cand_b, cand_j = [], []
-                for b in np.nonzero(active)[0]:
-                    js = pos[b] + np.nonzero(heads[b, pos[b]: pos[b] + _WINDOW])[0]
-                    if len(js) == 0:
-                        pos[b] = min(n, pos[b] + _WINDOW)
-                        continue
-                    cand_b.extend([b] * len(js))
-                    cand_j.extend(js.tolist())
-                if not cand_b:
-                    continue
-                cb = np.array(cand_b)
-                cj = np.array(cand_j)
-                trial = {k: v[cb].copy() for k, v in actions.items()}
-                tflat = trial[p.name].reshape(len(cb), -1)
-                tflat[np.arange(len(cb)), order[cb, cj]] = values[cb, cj]
-                legal = self.check_actions(state[cb], trial)
-                for b in np.unique(cb):
-                    mine = cb == b
-                    ok = np.nonzero(legal & mine)[0]
-                    if len(ok):
-                        first = ok[0]
-                        j = cj[first]
-                        flat[b, order[b, j]] = values[b, j]
-                        taken[b] += 1
-                        pos[b] = j + 1
-                    else:
-                        pos[b] = cj[mine].max() + 1
-        if not self.check_actions(state, actions).all():
-            bad = int(np.argmin(self.check_actions(state, actions)))
-            raise SimulationError(f"no legal action in state {bad} of the batch, not even noop")
+            candidates = [np.nonzero(heads[b])[0] for b in range(batch)]  # positions in the order
+            self._take_legal(state, actions, p, flat, order, values, candidates, taken, limit)
+        ok = self.check_actions(state, actions)
+        if not ok.all():
+            raise SimulationError(f"no legal action in state {int(np.argmin(ok))} of the batch, not even noop")
         return actions
+
+    def _take_legal(
+        self,
+        state: State,
+        actions: dict[str, Array],
+        p: PVariable,
+        flat: Array,
+        order: _Order,
+        values: Array,
+        candidates: list[Array],
+        taken: Array,
+        limit: int,
+    ) -> None:
+        """The sequential rule (try each candidate in turn, keep it if the
+        actions taken so far plus it are legal), a window of candidates per
+        state at a time, every state's window in one batched legality test.
+
+        A state's window is tested one of two ways. While candidates are
+        refused the set of actions does not change, so each candidate is
+        tested alone against it and the first legal one is the one taken
+        ("scan"). While candidates are taken the set after k of them is the
+        k-th prefix, so the prefixes are tested and the first illegal one is
+        the first candidate refused ("run"). A state switches to the other
+        way when its window ends the way the other one handles better.
+        """
+        batch = len(candidates)
+        pos = np.zeros(batch, dtype=np.int64)
+        run = np.zeros(batch, dtype=bool)
+        # every trial copies every action array: fewer candidates per window
+        # where they are large
+        per_state = sum(int(v[0].size) for v in actions.values())
+        width = max(2, min(_WINDOW, _TRIAL_BUDGET // max(1, per_state)))
+        scan_width = max(2, min(2 * _WINDOW, _TRIAL_BUDGET // max(1, per_state)))
+        while True:
+            active = [b for b in range(batch) if pos[b] < len(candidates[b]) and taken[b] < limit]
+            if not active:
+                return
+            rows_b, set_row, set_pos = [], [], []
+            windows: list[Array] = []
+            first = 0
+            for b in active:
+                js = candidates[b][pos[b] : pos[b] + (width if run[b] else scan_width)]
+                m = len(js)
+                windows.append(js)
+                rows_b.append(np.full(m, b))
+                if run[b]:  # row i: the first i + 1 candidates
+                    r, c = np.tril_indices(m)
+                    set_row.append(first + r)
+                    set_pos.append(js[c])
+                else:  # row i: candidate i alone
+                    set_row.append(first + np.arange(m))
+                    set_pos.append(js)
+                first += m
+            rb = np.concatenate(rows_b)
+            sr, sp = np.concatenate(set_row), np.concatenate(set_pos)
+            trial = {k: v[rb] for k, v in actions.items()}  # (fancy indexing copies)
+            tflat = trial[p.name].reshape(len(rb), -1)
+            tflat[sr, order.at(rb[sr], sp)] = values[rb[sr], sp]
+            legal = self.check_actions(state[rb], trial)
+            start = 0
+            for b, js in zip(active, windows, strict=True):
+                m = len(js)
+                ok = legal[start : start + m]
+                start += m
+                if run[b]:
+                    refused = np.nonzero(~ok)[0]
+                    k = int(refused[0]) if len(refused) else m
+                    k_taken = min(k, limit - int(taken[b]))
+                    for j in js[:k_taken]:
+                        flat[b, order.at(b, j)] = values[b, j]
+                    taken[b] += k_taken
+                    pos[b] += k + 1 if k < m else k
+                    run[b] = k == m
+                else:
+                    found = np.nonzero(ok)[0]
+                    if len(found):
+                        j = js[found[0]]
+                        flat[b, order.at(b, j)] = values[b, j]
+                        taken[b] += 1
+                        pos[b] += found[0] + 1
+                        run[b] = True
+                    else:
+                        pos[b] += m
 
     def _coin_flips(
         self, actions: dict[str, Array], batch: int, rng: np.random.Generator
-    ) -> Iterable[tuple[PVariable, Array, Array, Array]]:
+    ) -> Iterable[tuple[PVariable, Array, _Order, Array]]:
         """Per action fluent with groundings: its flattened action array (a
         view to write into), a random order of its groundings per state, and
-        a fair coin flip per grounding."""
+        a fair coin flip per position in that order."""
         for p in self.action_fluents:
             flat = actions[p.name].reshape(batch, -1)
             n = flat.shape[1]
             if n == 0:
                 continue
-            yield p, flat, np.argsort(rng.random((batch, n)), axis=1), rng.random((batch, n)) < 0.5
+            yield p, flat, _Order(rng.random((batch, n))), rng.random((batch, n)) < 0.5
 
     def _random_unconstrained(
         self, actions: dict[str, Array], batch: int, limit: int | None, rng: np.random.Generator
@@ -999,7 +2437,7 @@ class Simulator:
                 rank = taken[:, None] + np.cumsum(heads, axis=1)
                 heads &= rank <= limit
             rows = np.nonzero(heads)
-            flat[rows[0], order[rows]] = self._random_value(p, rng, len(rows[0]))
+            flat[rows[0], order.at(rows[0], rows[1])] = self._random_value(p, rng, len(rows[0]))
             taken += heads.sum(axis=1)
         return actions
 
@@ -1090,6 +2528,8 @@ class Simulator:
                 else:
                     out[name][(b, *idx)] = value
         return out
+
+
 
 
 def _wire_name(name: str, args: tuple[str, ...]) -> str:
