@@ -443,6 +443,7 @@ async def test_session_on_a_pomdp_plays_open_loop() -> None:
     # follows the plan it made from the initial state, all 20 turns
     assert all(obs.state is None for obs, _ in watch.turns)
     assert len(watch.turns) == 20 and result.rounds[0].ended_early is None
-    assert planner.replans == 0 and planner.searches == 1
+    # (a search cut short by a busy machine is refined later: counted apart)
+    assert planner.replans == 0 and planner.searches == 1 + planner.refinements
     assert any(a[0] == "deliver" for _, chosen in watch.turns for a in chosen)
     assert result.total_reward > -20.0  # noop's reward there
