@@ -38,7 +38,7 @@ How
     such as grammar and parser tables, and tells whether the side fails),
     then the best of ``--repeat`` timed builds. Steps: ``--warmup`` untimed
     steps (a quarter of that for the batch), then the best of ``--repeat``
-    runs of ``--steps`` steps (default 200), each timed as a whole with
+    runs of ``--steps`` steps (default 500), each timed as a whole with
     ``time.perf_counter`` and continuing from the state the previous one
     reached. The timed runs of the two sides alternate (build ours, build
     theirs, ...; steps ours, steps theirs, batched ours, ...), so that load
@@ -92,9 +92,9 @@ INSTANCES: list[tuple[str, int]] = [
     ("HVAC_ippc2023", 5),
 ]
 
-DEFAULT_STEPS = 200
+DEFAULT_STEPS = 500
 DEFAULT_BATCH = 1024
-DEFAULT_REPEAT = 3
+DEFAULT_REPEAT = 7
 DEFAULT_WARMUP = 20
 SEED = 0
 GOAL_RATIO = 3.0  # ours / pyRDDLGym single-state steps per second

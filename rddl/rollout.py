@@ -71,7 +71,8 @@ def run_episodes(
     steps = 0
     start = time.perf_counter()
     for _ in range(steps_to_run):
-        actions = sim.noop(episodes) if policy == "noop" else sim.random_actions(state, rng)
+        # (noop: no arrays at all, every action takes its default)
+        actions = None if policy == "noop" else sim.random_actions(state, rng)
         out = sim.step(state, actions, rng)
         returns += np.where(alive, discount * out.reward, 0.0)
         steps += int(alive.sum())

@@ -176,6 +176,7 @@ class _Node:
     value: Array | None = None  # known when the simulator is built
     owner: str | None = None  # the temporary whose memory it is, if this call allocated it
     bounds: tuple[Array, Array] | None = None  # elementwise, every value lies within
+    unexpanded: _Node | None = None  # the value before axes of size 1 were inserted
 
 
 class _Code:
@@ -235,13 +236,50 @@ class _Code:
         if self.draws:
             head.append("    if rng is None:")
             head.append(f"        _no_rng({self.draws[0]!r})")
-        body = _free_dead(_in_place(self.lines, self.meta)) if self.large else self.lines
+        body = _drop_unused(self.lines)
+        if self.large:
+            body = _free_dead(_in_place(body, self.meta))
         return "\n".join(head + body) + "\n"
 
 
 _TEMP = re.compile(r"\bt\d+\b")
 _ASSIGN = re.compile(r"\s*(t\d+) = ")
 _BINARY = re.compile(r"(\s*)(t\d+) = (_add|_sub|_mul|_div|_minimum|_maximum|_land|_lor)\((\w+), (\w+)\)$")
+
+
+_CALL = re.compile(r"\brng\b|\bk\d+\(")  # a draw, or a call that may raise
+
+
+def _drop_unused(lines: list[str]) -> list[str]:
+    """`lines` without the assignments whose value is never read (a view
+    made before the compiler found a way around it, say), except draws
+    and calls that may raise."""
+    lines = list(lines)
+    while True:
+        used: set[str] = set()
+        for line in lines:
+            m = _ASSIGN.match(line)
+            rest = line[m.end() :] if m else line
+            used.update(_TEMP.findall(rest))
+        keep = []
+        for line in lines:
+            m = _ASSIGN.match(line)
+            if m and m.group(1) not in used and not _CALL.search(line):
+                continue
+            keep.append(line)
+        if len(keep) == len(lines):
+            break
+        lines = keep
+    # a block left empty gets a `pass`
+    out: list[str] = []
+    for i, line in enumerate(lines):
+        out.append(line)
+        if line.rstrip().endswith(":"):
+            depth = len(line) - len(line.lstrip())
+            following = lines[i + 1] if i + 1 < len(lines) else ""
+            if len(following) - len(following.lstrip()) <= depth:
+                out.append(" " * (depth + 4) + "pass")
+    return out
 
 
 def _in_place(lines: list[str], meta: dict[str, tuple[tuple[int, ...], np.dtype[Any], str | None, bool]]) -> list[str]:
@@ -455,6 +493,7 @@ _BUILTINS: dict[str, Any] = {
     "_sqrt": np.sqrt,
     "_log": np.log,
     "_power": np.power,
+    "_square": np.square,
     "_hypot": np.hypot,
     "_matmul": np.matmul,
     "_matmul_cols": _matmul_cols,
@@ -619,12 +658,15 @@ class _Compiler:
         self.code.meta[name] = (shape, dtype, owner, node.batched)
         if view and len(args) == 1:
             b = self.bounds_of(args[0])
-            if b is not None:
-                with np.errstate(all="ignore"):
-                    code = _compiled(template.format("_x"))
-                    lo = eval(code, self.ns, {"_x": np.broadcast_to(b[0], args[0].shape), "B": 1})  # noqa: S307
-                    hi = eval(code, self.ns, {"_x": np.broadcast_to(b[1], args[0].shape), "B": 1})  # noqa: S307
-                node.bounds = (np.asarray(lo), np.asarray(hi))
+            if b is not None and args[0].dtype.kind != "b":  # (a bool's bounds go without saying)
+                try:
+                    with np.errstate(all="ignore"):
+                        code = _compiled(template.format("_x"))
+                        lo = eval(code, self.ns, {"_x": np.broadcast_to(b[0], args[0].shape), "B": 1})  # noqa: S307
+                        hi = eval(code, self.ns, {"_x": np.broadcast_to(b[1], args[0].shape), "B": 1})  # noqa: S307
+                    node.bounds = (np.asarray(lo), np.asarray(hi))
+                except (ValueError, TypeError):
+                    pass  # a view that is not a rearrangement (of the bytes, say): no bounds
         elif bounds is not None:
             given = [self.bounds_of(a) for a in args]
             if all(b is not None for b in given):
@@ -676,7 +718,10 @@ class _Compiler:
 
     def expand(self, node: _Node, keep: list[bool]) -> _Node:
         """`node` (over the kept scope variables) over the whole scope."""
-        return self.op("{0}" + _index_code(keep), [node], node.rtype, view=True)
+        out = self.op("{0}" + _index_code(keep), [node], node.rtype, view=True)
+        if out.value is None and out.unexpanded is None:
+            out.unexpanded = node
+        return out
 
     def cast(self, node: _Node, dtype: Any) -> _Node:
         dtype = np.dtype(dtype)
@@ -1331,6 +1376,8 @@ class _Compiler:
         # (axes of size 1 may stay anywhere: the reshape below drops them)
         in_place = [i for i in range(n + k) if fs[i] > 1] == f_axes
         fx = "{0}" if in_place else f"{{0}}.transpose({tuple(fperm)})"
+        if in_place and f.unexpanded is not None:
+            f = f.unexpanded  # (the same memory order of the same axes)
         sparse = self._sparse(kmat[0], unit=op == "sum") if S == 1 and self.large else None
         if sparse is not None:
             # a relation with few pairs per value (neighbours, successors, a
@@ -1341,19 +1388,24 @@ class _Compiler:
             flat = self.op(f"{fx}.reshape({C}, -1)", [f], f.rtype, view=True)
             if padded:
                 flat = self.op("_pad_zero_row({0})", [flat], f.rtype)
-            if op == "exists" or f.dtype != np.bool_:
-                out = self.op(f"{{0}}[{self.aux(cols[0])}]", [flat], f.rtype)
+            rows = [self.const(c, "int").code for c in cols]  # (the same text for the same relation)
+            if f.dtype == np.bool_:
+                # counts of bools, added as bytes (at most _SPARSE_MAX of
+                # them); an exists is a count above 0, so that an exists and
+                # a sum over the same relation share the count
+                flat = self.op("{0}.view(_u8)", [flat], "int", view=True)
+                count = self.op(" + ".join(f"{{0}}[{r}]" for r in rows), [flat], "int")
+                if op == "exists":
+                    out = self.op("{0} > 0", [count], "bool")
+                else:
+                    out = self.op("{0}.astype(_i64)", [count], "int")
+            else:
+                out = self.op(f"{{0}}[{rows[0]}]", [flat], f.rtype)
                 add = "_lor" if op == "exists" else "_add"
-                for c in cols[1:]:
-                    out = self.op(f"{add}({{0}}, {{1}}[{self.aux(c)}])", [out, flat], f.rtype)
+                for r in rows[1:]:
+                    out = self.op(f"{add}({{0}}, {{1}}[{r}])", [out, flat], f.rtype)
                 if op == "sum" and not real and out.dtype != np.int64:
                     out = self.op("{0}.astype(_i64)", [out], "int")
-            else:
-                # counts of bools, added as bytes (at most _SPARSE_MAX of them)
-                flat = self.op("{0}.view(_u8)", [flat], "int", view=True)
-                terms = " + ".join(f"{{0}}[{self.aux(c)}]" for c in cols)
-                out = self.op(terms, [flat], "int")
-                out = self.op("{0}.astype(_i64)", [out], "int")
         else:
             # counts of bools are exact in float32 (below 2**24); a sum stays
             # float64 (exact for integers below 2**53, which int sums are
@@ -1365,25 +1417,30 @@ class _Compiler:
             FO = int(np.prod([size[i] for i in f_out], dtype=np.int64))
             if not self.large and S * KO * C * FO * _LARGE_BATCH <= _BLAS_BLOCK:
                 matmul = "_matmul"
-            if S == 1:
-                mat = self.const(np.ascontiguousarray(kmat[0], dtype=dt), "real").code
-                text = f"{matmul}({mat}, {fx}.reshape({C}, -1).astype({dcode}, copy=False))"
+            shape = f"{C}, -1" if S == 1 else f"{S}, {C}, -1"
+            if matmul == "_matmul" and op == "exists" and f.dtype == np.bool_ and kv.dtype == np.bool_:
+                # small: numpy's boolean product is the exists itself (no casts)
+                mat = self.const(np.ascontiguousarray(kmat[0] if S == 1 else kmat, dtype=bool), "bool").code
+                out = self.op(f"_matmul({mat}, {fx}.reshape({shape}))", [f], "bool")
             else:
-                mat = self.const(np.ascontiguousarray(kmat, dtype=dt), "real").code
-                text = f"{matmul}({mat}, {fx}.reshape({S}, {C}, -1).astype({dcode}, copy=False))"
-            out = self.op(text, [f], "real" if real else "int")
-            if op == "exists":
-                out = self.op("{0} > 0", [out], "bool")
+                mat = self.const(np.ascontiguousarray(kmat[0] if S == 1 else kmat, dtype=dt), "real").code
+                text = f"{matmul}({mat}, {fx}.reshape({shape}).astype({dcode}, copy=False))"
+                out = self.op(text, [f], "real" if real else "int")
+                if op == "exists":
+                    out = self.op("{0} > 0", [out], "bool")
         if times != 1 and op == "sum":
             out = self.op(f"{{0}} * {times}", [out], out.rtype)
         # (shared, k_out, f_out, batch) -> scope order, batch last
         axes_now = shared + k_out + f_out
-        out = self.op(
-            "{0}.reshape(" + _tuple_code([*(str(size[i]) for i in axes_now), "-1"]) + ")",
-            [out],
-            out.rtype,
-            view=True,
-        )
+        # (the product's columns are f_out's values times the batch: a
+        # reshape, unless there are no f_out axes and it has the shape already)
+        if f_out or out.shape[:-1] != tuple(size[i] for i in axes_now):
+            out = self.op(
+                "{0}.reshape(" + _tuple_code([*(str(size[i]) for i in axes_now), "-1"]) + ")",
+                [out],
+                out.rtype,
+                view=True,
+            )
         ordered = sorted(axes_now)
         if axes_now != ordered:
             perm = (*(axes_now.index(i) for i in ordered), len(ordered))
@@ -1434,6 +1491,9 @@ class _Compiler:
         if name == "max":
             return self.op("_maximum({0}, {1})", pair, out, bounds=_bounds_max)
         if name == "pow":
+            if pair[1].value is not None and pair[1].value.size and (pair[1].value == 2).all():
+                # x * x, correctly rounded as pow(x, 2) is: the same values, faster
+                return self.op("_square({0}.astype(_f64, copy=False))", pair[:1], "real")
             return self.op("_power({0}.astype(_f64, copy=False), {1})", pair, "real")
         if name == "log":
             return self.op("_log({0}) / _log({1})", pair, "real")
