@@ -1,48 +1,57 @@
 """`mcts`: UCT-style trial-based tree search over the batched simulator.
 
-Theory of operation. Every turn the planner grows a search tree from the
+Theory of operation. Every turn the planner grows a search graph from the
 current state with the compiled simulator as its model, in the spirit of
 PROST's trial-based heuristic tree search (THTS):
 
 * *Decision nodes* hold a state, the number of steps left below it and the
   candidate joint actions that are legal there; each candidate is a *chance
   node* whose children are the sampled successor states (keyed by the bytes
-  of the state), each with its visit count and observed reward.
-* A *wave* runs `trials` trials side by side. All trials descend from the
-  root at once, one level per simulator call: each picks an action with
-  UCB1 (a virtual visit per pending trial spreads the trials over the
-  actions), one batched `Simulator.step` samples every trial's successor,
-  and a trial stops at the first successor that is new to the tree, at a
-  terminal state, or at the depth limit.
+  of the state). With `transpositions` (the default) every path that
+  reaches the same state with the same steps left shares one decision node,
+  within a turn and across the turns of a round, so small state spaces are
+  searched as a graph and the node of the observed state is the next root.
+* A *wave* runs many trials side by side. All trials descend from the root
+  at once, one level per simulator call: each picks an action with UCB1 (a
+  virtual visit per pending trial spreads the trials over the actions), one
+  batched `Simulator.step` samples every trial's successor, and a trial
+  stops at the first successor that is not expanded yet, at a terminal
+  state (no steps left, or `termination`), or after `trial_depth` levels.
 * The new leaves are *expanded* in one batch: for every leaf, every legal
   candidate action, and `rollouts` rollouts each, the first step takes that
-  action and the rest follow the rollout policy up to the rollout depth or
-  the steps left, all as one batch of states stepped together. The mean
-  return of each (leaf, action) initialises the action's value, as PROST's
-  heuristic initialises its Q-values.
+  action and the rest follow the rollout policy for up to `rollout_depth`
+  steps (never past the steps left), all as one batch of states stepped
+  together. A rollout cut short by `rollout_depth` counts as its mean
+  reward per step times the steps left (`extrapolate`), so that estimates
+  at different depths are on one scale. The mean return of each (leaf,
+  action) initialises the action's value, as PROST's heuristic initialises
+  its Q-values; with the `best` rollout policy each action gets random and
+  noop rollouts and the better mean counts.
 * Values are backed up as in THTS's MaxMonteCarlo backup: a decision node
   is worth its best action; an action is worth the heuristic estimate
   (weighted as `init_weight` visits) averaged with its sampled successors'
   rewards plus discounted values, weighted by how often each was sampled.
-* Between turns the subtree under the chosen action and the observed
-  successor becomes the next root when the tree has it (same state, same
-  steps left).
+* The action played is the root's best by value (most visits among equals).
 
 Legal joint actions: boolean action spaces whose joint actions (at most
 max-nondef-actions groundings set) number at most `enumerate_limit` are
 enumerated once into an *action library*; a node's candidates are the
 library entries legal in its state (max-nondef-actions, action
-preconditions, state-action constraints, checked in one batched call), at
-most `max_actions` of them (noop first, then a seeded random sample). Other
+preconditions, state-action constraints, checked in one batched call; once
+per session when the constraints read no state fluent), at most
+`max_actions` of them (noop first, then a seeded random sample). Other
 action spaces (int, enum or real actions, or too many combinations) get
 candidates sampled with `Simulator.random_actions` in the node's state,
-deduplicated, plus noop when it is legal.
+deduplicated, plus noop when it is legal. Rollouts draw uniformly from the
+legal library entries (or use `Simulator.random_actions`).
 
 Time: each turn ends at `Observation.deadline` (the client's uniform split
 of the session budget), or `time_per_step` seconds after `act` starts when
 that option is set, or after exactly `iterations` waves when that is set
 (which makes the search independent of the machine's speed: with a seed,
 the same observations then give the same actions). At least one wave runs.
+`stats` and `last_turn` count waves, trials, expanded leaves and simulated
+state transitions (`steps_per_second`).
 
 POMDPs (no state in the observation): the planner keeps a particle belief,
 `particles` copies of the initial state stepped with its own actions and,
@@ -50,7 +59,7 @@ when the observation fluents are discrete, kept only where their simulated
 observation matches the one received (all of them when none does). The
 root holds the particles, each trial starts from one of them, and the tree
 below the root is searched as if the state were then known (a QMDP-like
-approximation). The tree is not reused between turns of a POMDP.
+approximation).
 """
 
 from __future__ import annotations
@@ -300,7 +309,7 @@ class MCTSPlanner(Planner):
         "iterations": "search exactly this many waves per turn, whatever the time (for "
         "reproducible runs; default: search until the deadline)",
         "exploration": "UCB1 exploration constant, scaled by the node's largest |Q| (default 0.5)",
-        "rollout_depth": "steps of a leaf rollout (default 0: to the lookahead limit)",
+        "rollout_depth": "steps of a leaf rollout (default 10; 0: to the lookahead limit)",
         "depth": "lookahead limit of the search in steps (default 0: the steps left in the "
         "round); the tree and the rollouts never look further",
         "batch": "rows of a leaf-evaluation batch: trials per wave are chosen so that their "
@@ -309,7 +318,7 @@ class MCTSPlanner(Planner):
         "extrapolate": "a rollout cut short by rollout_depth counts as its mean reward per "
         "step over all the steps left (default yes; else as the rewards it saw)",
         "trial_depth": "most decision levels a trial descends through nodes already in the "
-        "tree before it backs up the value of the node it reached (default 0: no limit)",
+        "tree before it backs up the value of the node it reached (default 10; 0: no limit)",
         "rollout_policy": "policy after a leaf's first action: random (uniform legal joint "
         "actions), noop, or best (both; the better mean counts) (default best)",
         "init_weight": "visits the rollout estimate of a new action counts as (default 1)",
@@ -330,11 +339,11 @@ class MCTSPlanner(Planner):
         self.time_per_step = self.float_option("time_per_step", None, minimum=0.0)
         self.iterations = self.int_option("iterations", None, minimum=1)
         self.exploration = self._float("exploration", 0.5)
-        self.rollout_depth = self._int("rollout_depth", 0, 0)
+        self.rollout_depth = self._int("rollout_depth", 10, 0)
         self.depth = self._int("depth", 0, 0)
         self.batch = self._int("batch", 1024, 1)
         self.rollouts = self._int("rollouts", 1, 1)
-        self.trial_depth = self._int("trial_depth", 0, 0)
+        self.trial_depth = self._int("trial_depth", 10, 0)
         self.extrapolate = self.bool_option("extrapolate", True)
         policy = self.str_option("rollout_policy", "best")
         assert policy is not None
@@ -785,10 +794,12 @@ class MCTSPlanner(Planner):
         returns = np.zeros(0)
         if first:
             d_all = np.concatenate(depth)
-            returns = self._rollouts(leaves, np.concatenate(leaf_of), np.concatenate(start),
-                                     np.concatenate(first), d_all, modes, gamma, turn)
+            returns, ended = self._rollouts(leaves, np.concatenate(leaf_of), np.concatenate(start),
+                                            np.concatenate(first), d_all, modes, gamma, turn)
             if self.extrapolate and self.rollout_depth:
-                returns *= _horizon_factor(np.concatenate(steps), d_all, gamma)
+                # rollouts that reached a terminal state have their whole return
+                factor = _horizon_factor(np.concatenate(steps), d_all, gamma)
+                returns *= np.where(ended, 1.0, factor)
         offset = 0
         for leaf, rows in zip(leaves, cands, strict=True):
             a = len(rows)
@@ -814,10 +825,10 @@ class MCTSPlanner(Planner):
         turn.leaves += len(leaves)
 
     def _rollouts(self, leaves: list[_Node], leaf_of: Array, start: Array, first: Array,
-                  depth: Array, modes: int, gamma: float, turn: SearchStats) -> Array:
-        """Discounted returns of the rollouts: the first action given, then
-        the rollout policy (row r uses noop when `modes` is 2 and r's mode
-        index is 1, else the random policy)."""
+                  depth: Array, modes: int, gamma: float, turn: SearchStats) -> tuple[Array, Array]:
+        """Discounted returns of the rollouts (the first action given, then
+        the rollout policy: noop for the rows of mode 1 when `modes` is 2,
+        else `rollout_policy`) and which of them reached a terminal state."""
         assert self._sim is not None and self._lib is not None
         sim = self._sim
         n = len(first)
@@ -834,6 +845,7 @@ class MCTSPlanner(Planner):
         else:
             use_noop = np.zeros(n, dtype=bool)
         returns = np.zeros(n)
+        ended = np.zeros(n, dtype=bool)
         idx = np.arange(n)  # rows still rolling out, as rows of `returns`
         acts = self._lib.take(first)
         discount = 1.0
@@ -845,6 +857,7 @@ class MCTSPlanner(Planner):
             returns[idx] += discount * out.reward
             discount *= gamma
             t += 1
+            ended[idx] = out.done
             alive = (~out.done) & (depth[idx] > t)
             if not alive.any():
                 break
@@ -855,7 +868,7 @@ class MCTSPlanner(Planner):
             else:
                 states = out.next_state
             acts = self._policy(states, use_noop[idx])
-        return returns
+        return returns, ended
 
     def _policy(self, states: State, use_noop: Array) -> dict[str, Array]:
         """The rollout policy's joint actions for a batch of states."""

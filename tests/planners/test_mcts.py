@@ -19,7 +19,7 @@ from ippc.planners import (
     find_planner,
     make_planner,
 )
-from ippc.planners.mcts import MCTSPlanner, enumerate_boolean
+from ippc.planners.mcts import MCTSPlanner, _horizon_factor, enumerate_boolean
 from ippc.rddl import Model, load
 from ippc.rddl.simulator import Simulator, State
 from ippc.rddl.wire import WireCodec
@@ -107,13 +107,58 @@ def test_trap_is_avoided_while_it_matters(sims: dict[str, Simulator], steps_left
     assert chosen(actions) == {(expected, ())}
 
 
-def test_trap_already_dead_knows_the_cost(sims: dict[str, Simulator]) -> None:
+@pytest.mark.parametrize("rollout_depth", ["10", "2"])
+def test_trap_already_dead_knows_the_cost(sims: dict[str, Simulator], rollout_depth: str) -> None:
+    """4 steps of -20, whatever is done; a rollout cut at 2 steps counts its
+    mean reward for all 4."""
     sim = sims["tiny_trap_inst"]
-    planner = planner_for(sims, "tiny_trap_inst", **FAST)
+    planner = planner_for(sims, "tiny_trap_inst", rollout_depth=rollout_depth, **FAST)
     planner.act(observe(sim, state_with(sim, dead=True), 7, 4))
     root = planner._root
     assert root is not None
-    assert np.allclose(root.q(), -80.0)  # 4 steps of -20, whatever is done
+    assert np.allclose(root.q(), -80.0)
+
+
+def test_rollouts_cut_short_without_extrapolation(sims: dict[str, Simulator]) -> None:
+    sim = sims["tiny_trap_inst"]
+    planner = planner_for(sims, "tiny_trap_inst", rollout_depth="2", extrapolate="no", **FAST)
+    planner.act(observe(sim, state_with(sim, dead=True), 7, 4))
+    root = planner._root
+    assert root is not None
+    assert root.h == [-40.0] * 3  # two steps seen, two missing
+    assert (root.q() > -80.0).all()
+
+
+def test_horizon_factor() -> None:
+    assert _horizon_factor(np.array([30, 10]), np.array([10, 10]), 1.0).tolist() == [3.0, 1.0]
+    factor = _horizon_factor(np.array([3]), np.array([1]), 0.5)
+    assert factor.tolist() == pytest.approx([(1 + 0.5 + 0.25) / 1.0])
+
+
+@pytest.mark.parametrize("share", [True, False])
+def test_transpositions(sims: dict[str, Simulator], share: bool) -> None:
+    """In `pairs` every joint action leads to the same successor: one shared
+    node with transpositions, one per action without."""
+    sim = sims["tiny_pairs_inst"]
+    planner = planner_for(sims, "tiny_pairs_inst", transpositions="yes" if share else "no", **FAST)
+    planner.act(observe(sim, sim.initial_state(1), 1))
+    root = planner._root
+    assert root is not None
+    successors = {id(o.node) for ch in root.children for o in ch.values()}
+    assert len(successors) == (1 if share else 10)
+    assert chosen(planner.act(observe(sim, sim.initial_state(1), 1))) == {("flip", ("s2",)), ("flip", ("s3",))}
+
+
+def test_trial_depth_bounds_the_descent(sims: dict[str, Simulator]) -> None:
+    """With trial_depth 1 every trial stops after one level, so (with one
+    successor per action) the tree never grows below the root's child."""
+    sim = sims["tiny_pairs_inst"]
+    planner = planner_for(sims, "tiny_pairs_inst", trial_depth="1", **FAST)
+    planner.act(observe(sim, sim.initial_state(1), 1))
+    root = planner._root
+    assert root is not None
+    (child,) = {o.node for ch in root.children for o in ch.values()}
+    assert child.expanded and all(not ch for ch in child.children)
 
 
 def test_concurrent_actions_under_max_nondef_and_a_constraint(sims: dict[str, Simulator]) -> None:
