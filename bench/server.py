@@ -7,16 +7,34 @@ rddlsim's own throughput was measured (see PROTOCOL-rddlsim.md §11).
 
     python bench/server.py                 # 1, 10 and 50 clients
     python bench/server.py --clients 1 --rounds 5
-    python bench/server.py --rddlsim-classpath /path/to/rddlsim/bin:/path/to/lib/*
+    python bench/server.py --rddlsim-classpath '/path/to/rddlsim/bin:/path/to/lib/*'
+    python bench/server.py --db            # the same with the SQLite result store
 
-With `--rddlsim-classpath` (a build of rddlsim you made outside this
-repository) the same workload also runs against rddlsim's Java server in
-the same run and the table shows the ratio. Without it, the ratio is
-against the figure quoted in the issue (420-670 turns/s for one client on
-a 2-core machine), which is not a same-run reference: read it as such.
+The client (`NoopClients`) is the smallest thing that plays a session: plain
+blocking sockets from the `socket` module with TCP_NODELAY, one `selectors`
+loop for all connections (with one connection it reads directly, without the
+selector), a bytearray per connection searched for the NUL terminator, the
+root element read from the bytes after the 39-byte declaration, and replies
+that are precomputed bytes. No XML parser, no trio, no threads. The very same
+client plays against ours, against a server answering with canned bytes, and
+against rddlsim, so the ratios compare servers, not clients.
 
-The server runs as a separate process (as users run it); the clients run
-in this process, one trio task each.
+The one-client figures are the median of `--repeat` sessions, with ours,
+canned and rddlsim taking turns (ours, canned, rddlsim, ours, ...) so that a
+load change on a shared machine hits all of them alike. With
+`--rddlsim-classpath` (a build of rddlsim you made outside this repository;
+it is started with a temporary folder as its working directory, where it
+writes its log) the ratio is against rddlsim measured in the same run, after
+a warm-up session (warm JVM). Without it, the ratio is against the figure
+quoted in the issue (420-670 turns/s for one client on a 2-core machine),
+which is not a same-run reference: read it as such.
+
+The canned-reply server is trio and the kernel only (no XML, no simulation):
+the floor under any trio server on this machine. Our server runs as a
+separate process started as users start it (`rddl-server ... -q`); "cpu
+us/turn" is that process's user + system CPU time divided by the turns.
+Memory per session is the growth of the server's RSS with `--memory-sessions`
+sessions held open at their first turn.
 """
 
 from __future__ import annotations
@@ -25,18 +43,23 @@ import argparse
 import json
 import os
 import re
+import selectors
+import socket
+import statistics
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
-
-import trio
 
 REPO = Path(__file__).resolve().parents[1]
 BENCH_RDDL = REPO.parent / "shared" / "rddlsim-transcripts" / "rddl-bench"
 INSTANCE = "sysadmin_inst_mdp__1"
 DECL = b'<?xml version="1.0" encoding="UTF-8"?>\n'
 QUOTED_RDDLSIM = (420.0, 670.0)
+
+ROUND_REQUEST = DECL + b"<round-request/>\0"
+ACTIONS = DECL + b"<actions/>\0"
 
 
 def session_request(name: str) -> bytes:
@@ -50,57 +73,138 @@ def session_request(name: str) -> bytes:
     )
 
 
-class Raw:
-    """The smallest client: NUL framing, the root element, nothing more."""
+def root(msg: bytes) -> bytes:
+    """The root element's name (after an optional declaration)."""
+    start = msg.find(b"<", msg.find(b"?>") + 2 if msg.startswith(b"<?") else 0)
+    end = start + 1
+    while end < len(msg) and msg[end] not in b"/> \t\r\n":
+        end += 1
+    return msg[start + 1 : end]
 
-    def __init__(self, stream: trio.SocketStream):
-        self.stream = stream
+
+class _Conn:
+    """One noop session: its socket, inbound bytes and progress."""
+
+    __slots__ = ("sock", "buf", "rounds_left", "turns", "held", "done", "canned")
+
+    def __init__(self, sock: socket.socket, canned: dict[str, bytes] | None):
+        self.sock = sock
         self.buf = bytearray()
+        self.rounds_left = -1  # until session-init
+        self.turns = 0
+        self.held = False
+        self.done = False
+        self.canned = canned
 
-    async def recv(self) -> bytes:
-        while True:
-            i = self.buf.find(b"\0")
-            if i >= 0:
-                msg = bytes(self.buf[:i])
-                del self.buf[: i + 1]
-                return msg
-            data = await self.stream.receive_some(1 << 16)
-            if not data:
-                raise EOFError("server closed")
-            self.buf += data
-
-
-async def one_session(port: int, name: str, hold: trio.Event | None = None, canned: dict[str, bytes] | None = None) -> int:
-    """A whole noop session; returns the turns played (and, with `canned`,
-    keeps one server message of each kind)."""
-    stream = await trio.open_tcp_stream("127.0.0.1", port)
-    turns = 0
-    async with stream:
-        c = Raw(stream)
-        await stream.send_all(session_request(name))
-        init = await c.recv()
-        if canned is not None:
-            canned["session-init"] = init
-        m = re.search(rb"<num-rounds>(\d+)</num-rounds>", init)
-        assert m, init[:200]
-        for _ in range(int(m.group(1))):
-            await stream.send_all(DECL + b"<round-request/>\0")
-            rinit = await c.recv()
-            while b"<round-end>" not in (msg := await c.recv()):
-                if canned is not None:
-                    canned.setdefault("turn", msg)
-                turns += 1
-                if hold is not None:
-                    await hold.wait()
-                    hold = None
-                await stream.send_all(DECL + b"<actions/>\0")
+    def on_message(self, msg: bytes, hold: bool) -> bytes | None:
+        """What to send back for `msg` (None: nothing)."""
+        kind = root(msg)
+        canned = self.canned
+        if kind == b"turn":
             if canned is not None:
-                canned["round-init"], canned["round-end"] = rinit, msg
-        end = await c.recv()
-        assert b"<session-end>" in end
-        if canned is not None:
-            canned["session-end"] = end
-    return turns
+                canned.setdefault("turn", msg)
+            self.turns += 1
+            if hold and self.turns == 1:
+                self.held = True
+                return None
+            return ACTIONS
+        if kind == b"round-end":
+            if canned is not None:
+                canned["round-end"] = msg
+            self.rounds_left -= 1
+            return ROUND_REQUEST if self.rounds_left > 0 else None
+        if kind == b"round-init":
+            if canned is not None:
+                canned["round-init"] = msg
+            return None
+        if kind == b"session-init":
+            if canned is not None:
+                canned["session-init"] = msg
+            m = re.search(rb"<num-rounds>(\d+)</num-rounds>", msg)
+            assert m, msg[:200]
+            self.rounds_left = int(m.group(1))
+            return ROUND_REQUEST
+        if kind == b"session-end":
+            if canned is not None:
+                canned["session-end"] = msg
+            self.done = True
+            return None
+        raise RuntimeError(f"unexpected message {msg[:120]!r}")
+
+
+class NoopClients:
+    """`n` noop sessions at once against 127.0.0.1:`port` (see the module
+    docstring). `run()` plays them to the end and returns the turns played.
+    With `hold`, every session stops at its first turn until `release()`."""
+
+    def __init__(self, port: int, n: int, *, name: str = "bench", hold: bool = False,
+                 canned: dict[str, bytes] | None = None):
+        self.conns: list[_Conn] = []
+        self.hold = hold
+        for i in range(n):
+            sock = socket.create_connection(("127.0.0.1", port))
+            sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+            conn = _Conn(sock, canned)
+            self.conns.append(conn)
+            sock.sendall(session_request(f"{name}{i}"))
+
+    def _feed(self, conn: _Conn, data: bytes) -> None:
+        if not data:
+            raise EOFError("the server closed the connection")
+        buf = conn.buf
+        buf += data
+        start = 0
+        out = []
+        while (end := buf.find(b"\0", start)) >= 0:
+            reply = conn.on_message(bytes(buf[start:end]), self.hold)
+            if reply is not None:
+                out.append(reply)
+            start = end + 1
+        if start:
+            del buf[:start]
+        if out:
+            conn.sock.sendall(out[0] if len(out) == 1 else b"".join(out))
+
+    def run(self, until_held: bool = False) -> int:
+        """Play until every session ended (or, with `until_held`, until every
+        session waits at its held first turn)."""
+        live = [c for c in self.conns if not c.done]
+        if len(live) == 1 and not until_held:
+            conn = live[0]
+            recv = conn.sock.recv
+            while not conn.done:
+                self._feed(conn, recv(65536))
+        else:
+            with selectors.DefaultSelector() as sel:
+                for c in live:
+                    sel.register(c.sock, selectors.EVENT_READ, c)
+                pending = len(live)
+                while pending:
+                    for key, _ in sel.select():
+                        c = key.data
+                        self._feed(c, c.sock.recv(65536))
+                        if c.done or (until_held and c.held):
+                            sel.unregister(c.sock)
+                            pending -= 1
+        if not until_held:
+            for c in self.conns:
+                c.sock.close()
+        return sum(c.turns for c in self.conns)
+
+    def release(self) -> None:
+        """Answer the held first turns."""
+        self.hold = False
+        for c in self.conns:
+            if c.held:
+                c.held = False
+                c.sock.sendall(ACTIONS)
+
+
+def play(port: int, n: int, canned: dict[str, bytes] | None = None) -> tuple[int, float]:
+    """`n` whole noop sessions at once: (turns, seconds), connects included."""
+    t0 = time.perf_counter()
+    turns = NoopClients(port, n, canned=canned).run()
+    return turns, time.perf_counter() - t0
 
 
 # --------------------------------------------------- the transport's floor
@@ -108,19 +212,31 @@ async def one_session(port: int, name: str, hold: trio.Event | None = None, cann
 
 async def echo_server(canned_file: str) -> None:
     """Answers like rddl-server with canned bytes (no XML, no simulation):
-    what trio and the kernel cost per turn, the floor under any Python server."""
+    what trio and the kernel cost per turn, the floor under any trio server."""
+    import trio
+
     canned = {k: bytes.fromhex(v) + b"\0" for k, v in json.loads(Path(canned_file).read_text()).items()}
     rounds = int(re.search(rb"<num-rounds>(\d+)<", canned["session-init"]).group(1))  # type: ignore[union-attr]
 
     async def handler(stream: trio.SocketStream) -> None:
-        c = Raw(stream)
-        await c.recv()
+        buf = bytearray()
+
+        async def recv() -> None:
+            nonlocal buf
+            while (i := buf.find(b"\0")) < 0:
+                data = await stream.receive_some(1 << 16)
+                if not data:
+                    raise EOFError
+                buf += data
+            del buf[: i + 1]
+
+        await recv()
         await stream.send_all(canned["session-init"])
         for _ in range(rounds):
-            await c.recv()
+            await recv()
             await stream.send_all(canned["round-init"] + canned["turn"])
             for h in range(40):
-                await c.recv()
+                await recv()
                 await stream.send_all(canned["turn"] if h < 39 else canned["round-end"])
         await stream.send_all(canned["session-end"])
 
@@ -129,19 +245,7 @@ async def echo_server(canned_file: str) -> None:
     await trio.serve_listeners(handler, listeners)
 
 
-async def run_clients(port: int, n: int) -> tuple[int, float]:
-    total = 0
-    t0 = time.perf_counter()
-
-    async def go(i: int) -> None:
-        nonlocal total
-        played = await one_session(port, f"bench{i}")  # not `total += await`: that reads total first
-        total += played
-
-    async with trio.open_nursery() as nursery:
-        for i in range(n):
-            nursery.start_soon(go, i)
-    return total, time.perf_counter() - t0
+# --------------------------------------------------- processes
 
 
 def cpu_seconds(pid: int) -> float:
@@ -157,27 +261,25 @@ def rss_kb(pid: int) -> int:
     return 0
 
 
-async def memory_per_session(port: int, pid: int, n: int) -> float:
-    """RSS growth of the server per open session (n sessions held open
-    at their first turn)."""
-    hold = trio.Event()
+def memory_per_session(port: int, pid: int, n: int) -> float:
+    """RSS growth of the server per open session (n sessions held open at
+    their first turn), then those sessions played to the end."""
     base = rss_kb(pid)
-    async with trio.open_nursery() as nursery:
-        for i in range(n):
-            nursery.start_soon(one_session, port, f"mem{i}", hold)
-        await trio.sleep(2.0)
-        during = rss_kb(pid)
-        hold.set()
+    clients = NoopClients(port, n, name="mem", hold=True)
+    clients.run(until_held=True)
+    time.sleep(0.5)
+    during = rss_kb(pid)
+    clients.release()
+    clients.run()
     return (during - base) / n
 
 
-def start_ours(rounds: int) -> tuple[subprocess.Popen[str], int]:
-    proc = subprocess.Popen(
-        [sys.executable, "-c", "from ippc.server.cli import main; main()", str(BENCH_RDDL),
-         "--port", "0", "--rounds", str(rounds), "--timeout", "0", "-q"],
-        stdout=subprocess.PIPE,
-        text=True,
-    )
+def start_ours(rounds: int, db: Path | None) -> tuple[subprocess.Popen[str], int]:
+    cmd = [sys.executable, "-c", "from ippc.server.cli import main; main()", str(BENCH_RDDL),
+           "--port", "0", "--rounds", str(rounds), "--timeout", "0", "-q"]
+    if db is not None:
+        cmd += ["--db", str(db)]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True)
     assert proc.stdout is not None
     line = proc.stdout.readline()
     if not line.startswith("listening on"):
@@ -186,15 +288,24 @@ def start_ours(rounds: int) -> tuple[subprocess.Popen[str], int]:
     return proc, int(line.rsplit(":", 1)[1])
 
 
-def start_rddlsim(classpath: str, rounds: int, port: int) -> subprocess.Popen[bytes]:
+def start_canned(canned: dict[str, bytes], folder: Path) -> tuple[subprocess.Popen[str], int]:
+    canned_file = folder / "canned.json"
+    canned_file.write_text(json.dumps({k: v.hex() for k, v in canned.items()}))
+    proc = subprocess.Popen([sys.executable, __file__, "--echo-server", str(canned_file)],
+                            stdout=subprocess.PIPE, text=True)
+    assert proc.stdout is not None
+    return proc, int(proc.stdout.readline().rsplit(":", 1)[1])
+
+
+def start_rddlsim(classpath: str, rounds: int, port: int, cwd: Path) -> subprocess.Popen[bytes]:
+    # rddlsim writes rddl-PORT.log into its working directory: a temporary one
     proc = subprocess.Popen(
         ["java", "-Xmx1g", "-cp", classpath, "rddl.competition.Server", str(BENCH_RDDL), str(port), str(rounds), "0", "0", "0"],
         stdout=subprocess.DEVNULL,
         stderr=subprocess.DEVNULL,
+        cwd=cwd,
     )
     deadline = time.monotonic() + 60
-    import socket
-
     while time.monotonic() < deadline:
         try:
             socket.create_connection(("127.0.0.1", port), timeout=0.5).close()
@@ -207,8 +318,6 @@ def start_rddlsim(classpath: str, rounds: int, port: int) -> subprocess.Popen[by
 
 
 def free_port() -> int:
-    import socket
-
     s = socket.socket()
     s.bind(("127.0.0.1", 0))
     port = int(s.getsockname()[1])
@@ -216,90 +325,109 @@ def free_port() -> int:
     return port
 
 
+def stop(proc: subprocess.Popen[str] | subprocess.Popen[bytes] | None) -> None:
+    if proc is not None and proc.poll() is None:
+        proc.terminate()
+        try:
+            proc.wait(10)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait(10)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--clients", type=int, nargs="+", default=[1, 10, 50])
     ap.add_argument("--rounds", type=int, default=30)
+    ap.add_argument("--repeat", type=int, default=5, help="one-client sessions per server (median)")
     ap.add_argument("--memory-sessions", type=int, default=50)
+    ap.add_argument("--db", action="store_true", help="run our server with --db (SQLite in a temporary folder)")
     ap.add_argument("--rddlsim-classpath", default=os.environ.get("RDDLSIM_CP"))
     ap.add_argument("--json", action="store_true")
     ap.add_argument("--echo-server", metavar="CANNED", help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.echo_server:
+        import trio
+
         trio.run(echo_server, args.echo_server)
         return
     if not BENCH_RDDL.is_dir():
         raise SystemExit(f"missing {BENCH_RDDL} (the shared folder beside the checkout)")
 
-    rows = []
-    proc, port = start_ours(args.rounds)
-    canned: dict[str, bytes] = {}
-    try:
-        trio.run(one_session, port, "warm-up", None, canned)  # compiles the instance, keeps samples
-        # memory first, before the load runs leave freed memory for reuse
-        mem = trio.run(memory_per_session, port, proc.pid, args.memory_sessions)
-        for n in args.clients:
-            cpu0 = cpu_seconds(proc.pid)
-            turns, secs = trio.run(run_clients, port, n)
-            cpu = cpu_seconds(proc.pid) - cpu0
-            rows.append({"server": "ippc", "clients": n, "turns": turns, "seconds": secs, "turns_per_s": turns / secs,
-                         "server_cpu_us_per_turn": 1e6 * cpu / turns})
-    finally:
-        proc.terminate()
-        proc.wait(10)
-
-    # the same client against canned replies: the floor of the transport
-    canned_file = Path(os.environ.get("TMPDIR", "/tmp")) / f"ippc-bench-canned-{os.getpid()}.json"
-    canned_file.write_text(json.dumps({k: v.hex() for k, v in canned.items()}))
-    eproc = subprocess.Popen([sys.executable, __file__, "--echo-server", str(canned_file)], stdout=subprocess.PIPE, text=True)
-    try:
-        assert eproc.stdout is not None
-        eport = int(eproc.stdout.readline().rsplit(":", 1)[1])
-        trio.run(run_clients, eport, 1)
-        turns, secs = trio.run(run_clients, eport, 1)
-        floor = turns / secs
-        rows.append({"server": "canned", "clients": 1, "turns": turns, "seconds": secs, "turns_per_s": floor})
-    finally:
-        eproc.kill()
-        eproc.wait(10)
-        canned_file.unlink(missing_ok=True)
-
-    ref_one: float | None = None
-    if args.rddlsim_classpath:
-        rport = free_port()
-        jproc = start_rddlsim(args.rddlsim_classpath, args.rounds, rport)
+    rows: list[dict[str, object]] = []
+    with tempfile.TemporaryDirectory(prefix="ippc-bench-") as tmp:
+        folder = Path(tmp)
+        proc, port = start_ours(args.rounds, folder / "results.sqlite" if args.db else None)
+        eproc = jproc = None
         try:
-            trio.run(run_clients, rport, 1)
-            turns, secs = trio.run(run_clients, rport, 1)
-            ref_one = turns / secs
-            rows.append({"server": "rddlsim", "clients": 1, "turns": turns, "seconds": secs, "turns_per_s": ref_one})
+            canned: dict[str, bytes] = {}
+            play(port, 1, canned)  # compiles the instance, keeps one message of each kind
+            # memory first, before the load runs leave freed memory for reuse
+            mem = memory_per_session(port, proc.pid, args.memory_sessions)
+            servers: dict[str, tuple[int, int | None]] = {"ippc": (port, proc.pid)}
+            eproc, eport = start_canned(canned, folder)
+            servers["canned"] = (eport, eproc.pid)
+            if args.rddlsim_classpath:
+                rport = free_port()
+                jproc = start_rddlsim(args.rddlsim_classpath, args.rounds, rport, folder)
+                servers["rddlsim"] = (rport, jproc.pid)
+            for p, _ in servers.values():
+                if p != port:
+                    play(p, 1)  # warm-up (JIT for rddlsim)
+            # one client: the servers take turns, median of `repeat`
+            one: dict[str, list[tuple[float, float]]] = {k: [] for k in servers}
+            for _ in range(args.repeat):
+                for key, (p, pid) in servers.items():
+                    cpu0 = cpu_seconds(pid) if pid else 0.0
+                    turns, secs = play(p, 1)
+                    cpu = cpu_seconds(pid) - cpu0 if pid else 0.0
+                    one[key].append((turns / secs, 1e6 * cpu / turns))
+            for key, runs in one.items():
+                rates = [r for r, _ in runs]
+                rows.append({"server": key, "clients": 1, "turns": turns, "runs": len(runs),
+                             "turns_per_s": statistics.median(rates), "min": min(rates), "max": max(rates),
+                             "server_cpu_us_per_turn": statistics.median(c for _, c in runs)})
+            for n in args.clients:
+                if n == 1:
+                    continue
+                cpu0 = cpu_seconds(proc.pid)
+                turns, secs = play(port, n)
+                cpu = cpu_seconds(proc.pid) - cpu0
+                rows.append({"server": "ippc", "clients": n, "turns": turns, "runs": 1, "turns_per_s": turns / secs,
+                             "server_cpu_us_per_turn": 1e6 * cpu / turns})
         finally:
-            jproc.kill()
-            jproc.wait(10)
+            for pr in (proc, eproc, jproc):
+                stop(pr)
 
+    ref = next((r["turns_per_s"] for r in rows if r["server"] == "rddlsim"), None)
     if args.json:
-        print(json.dumps({"rows": rows, "memory_kb_per_session": mem, "rddlsim_same_run": ref_one}, indent=2))
+        print(json.dumps({"rows": rows, "memory_kb_per_session": mem, "rddlsim_same_run": ref, "db": args.db}, indent=2))
         return
-    print(f"workload: {INSTANCE}, {args.rounds} rounds x horizon 40 per session, noop raw client, loopback")
-    print("canned = a server that answers with fixed bytes (no XML, no simulation): the floor")
-    print(f"{'server':8} {'clients':>7} {'turns':>8} {'seconds':>8} {'turns/s':>9} {'cpu us/turn':>11}  ratio to rddlsim (1 client)")
+    print(f"workload: {INSTANCE}, {args.rounds} rounds x horizon 40 per session, noop raw client, loopback"
+          + (", ippc with --db" if args.db else ""))
+    print(f"one client: median of {args.repeat} sessions per server, servers taking turns (min-max in brackets)")
+    print("canned = a trio server that answers with fixed bytes (no XML, no simulation): the floor")
+    print(f"{'server':8} {'clients':>7} {'turns':>8} {'turns/s':>9} {'(min-max)':>13} {'cpu us/turn':>11}  ratio to rddlsim (1 client)")
     for r in rows:
-        if ref_one:
-            ratio = f"{r['turns_per_s'] / ref_one:6.1f}x (same run)"
+        rate = float(r["turns_per_s"])  # type: ignore[arg-type]
+        if ref:
+            ratio = f"{rate / float(ref):6.1f}x (same run)"  # type: ignore[arg-type]
         else:
             lo, hi = QUOTED_RDDLSIM
-            ratio = f"{r['turns_per_s'] / hi:5.1f}x-{r['turns_per_s'] / lo:.1f}x (quoted 420-670/s, not this run)"
-        cpu = f"{r['server_cpu_us_per_turn']:11.0f}" if "server_cpu_us_per_turn" in r else f"{'-':>11}"
-        print(f"{r['server']:8} {r['clients']:>7} {r['turns']:>8} {r['seconds']:>8.2f} {r['turns_per_s']:>9.0f} {cpu}  {ratio}")
+            ratio = f"{rate / hi:5.1f}x-{rate / lo:.1f}x (quoted 420-670/s, not this run)"
+        spread = f"({r['min']:.0f}-{r['max']:.0f})" if "min" in r else ""
+        print(f"{r['server']:8} {r['clients']:>7} {r['turns']:>8} {rate:>9.0f} {spread:>13} "
+              f"{float(r['server_cpu_us_per_turn']):11.0f}  {ratio}")  # type: ignore[arg-type]
     ours = [r for r in rows if r["server"] == "ippc"]
     if len(ours) > 1:
         trend = " >= ".join(f"{r['turns_per_s']:.0f}" for r in ours)
-        holds = all(b["turns_per_s"] >= 0.9 * a["turns_per_s"] for a, b in zip(ours, ours[1:], strict=False))
+        holds = all(float(b["turns_per_s"]) >= 0.9 * float(a["turns_per_s"])  # type: ignore[arg-type]
+                    for a, b in zip(ours, ours[1:], strict=False))
         print(f"aggregate as clients are added: {trend}  ({'holds' if holds else 'FALLS'}, 10% noise allowed)")
-    one = next(r for r in ours if r["clients"] == 1)
-    print(f"one client: {one['turns_per_s'] / floor:.2f} of the canned-reply floor ({floor:.0f} turns/s: "
-          "trio + kernel + this client, no XML, no simulation)")
-    print(f"memory per open session: {mem:.0f} KiB ({args.memory_sessions} sessions held at their first turn)")
+    floor = next(float(r["turns_per_s"]) for r in rows if r["server"] == "canned")  # type: ignore[arg-type]
+    print(f"one client: {float(ours[0]['turns_per_s']) / floor:.2f} of the canned-reply floor "  # type: ignore[arg-type]
+          f"({floor:.0f} turns/s)")
+    print(f"memory per open session: {mem:.1f} KiB ({args.memory_sessions} sessions held at their first turn)")
 
 
 if __name__ == "__main__":
