@@ -179,6 +179,25 @@ class _Node:
     unexpanded: _Node | None = None  # the value before axes of size 1 were inserted
 
 
+@dataclass(eq=False)
+class _Slot:
+    """Uniform 32-bit integers for one draw site, shaped (*shape, B): a view
+    of the block of random bits that the step draws first."""
+
+    name: str
+    shape: tuple[int, ...]
+
+
+@dataclass(eq=False)
+class _Pool:
+    """The uniform slots of one branch: `free`, those that branches
+    exclusive with this one drew (so this one may draw them again), and
+    `used`, those this branch draws, in order."""
+
+    free: list[_Slot] = dataclasses.field(default_factory=list)
+    used: list[_Slot] = dataclasses.field(default_factory=list)
+
+
 class _Code:
     """The source of one generated function: its statements (in nested
     blocks), the inputs it reads, and the values computed so far in each
@@ -194,6 +213,10 @@ class _Code:
         self.memo: list[dict[Any, _Node]] = [{}]
         self.count = 0
         self.draws: list[str] = []  # where each draw is, in order
+        # uniform slots, in the order of the block of random bits; the
+        # innermost branch's pool last (see `_Compiler.alternatives`)
+        self.slots: list[_Slot] = []
+        self.pools: list[_Pool] = [_Pool()]
         # each temporary's shape, dtype and owner (for writing in place)
         self.meta: dict[str, tuple[tuple[int, ...], np.dtype[Any], str | None, bool]] = {}
 
@@ -203,6 +226,21 @@ class _Code:
 
     def emit(self, line: str) -> None:
         self.lines.append("    " * self.depth + line)
+
+    def uniform(self, shape: tuple[int, ...]) -> str:
+        """The name of uniform 32-bit integers shaped (*shape, B) for a
+        draw: a slot that an exclusive branch drew (the first of the same
+        shape), else a new one."""
+        pool = self.pools[-1]
+        for i, slot in enumerate(pool.free):
+            if slot.shape == shape:
+                del pool.free[i]
+                pool.used.append(slot)
+                return slot.name
+        slot = _Slot(f"u{len(self.slots) + 1}", shape)
+        self.slots.append(slot)
+        pool.used.append(slot)
+        return slot.name
 
     def lookup(self, key: Any) -> _Node | None:
         for table in reversed(self.memo):
@@ -236,6 +274,17 @@ class _Code:
         if self.draws:
             head.append("    if rng is None:")
             head.append(f"        _no_rng({self.draws[0]!r})")
+        if self.slots:
+            # every uniform of the step at once, in slot order, batch last
+            sizes = [int(np.prod(slot.shape)) for slot in self.slots]
+            head.append(f"    _u = _uniforms(rng, {sum(sizes)} * B)")
+            start = 0
+            for slot, size in zip(self.slots, sizes, strict=True):
+                view = f"_u[{start} * B:{start + size} * B]"
+                if slot.shape:
+                    view += f".reshape({_last_shape_code(slot.shape)})"
+                head.append(f"    {slot.name} = {view}")
+                start += size
         body = _drop_unused(self.lines)
         if self.large:
             body = _free_dead(_in_place(body, self.meta))
@@ -451,6 +500,21 @@ def _pad_zero_row(x: Array) -> Array:
     return out
 
 
+def _uniforms(rng: np.random.Generator, n: int) -> Array:
+    """`n` independent uniform integers in [0, 2**32): the raw 64-bit
+    outputs of `rng`'s bit generator, each cut in two (its low half
+    first on a little-endian machine). Half the bits of `rng.random()`'s
+    53-bit doubles, twice as many numbers per output, and no conversion:
+    plenty for a Bernoulli (see `_Compiler._Distribution`)."""
+    return rng.bit_generator.random_raw((n + 1) >> 1).view(np.uint32)  # type: ignore[no-any-return]
+
+
+# A Bernoulli(p) draw from a uniform integer u in [0, 2**32) is u < p * 2**32
+# (computed exactly in float64): it fires with probability ceil(p * 2**32) /
+# 2**32, within 2**-32 (2.3e-10) of p, never for p = 0 and always for p = 1.
+_TWO_32 = 2.0**32
+
+
 def _no_rng(where: str) -> None:
     raise SimulationError(f"{where}: a random draw needs a numpy Generator (rng)")
 
@@ -502,6 +566,7 @@ _BUILTINS: dict[str, Any] = {
     "_searchsorted": np.searchsorted,
     "_broadcast_to": np.broadcast_to,
     "_no_rng": _no_rng,
+    "_uniforms": _uniforms,
 }
 
 _UNARY_FUNCTIONS = {
@@ -1528,21 +1593,16 @@ class _Compiler:
             (p,) = params
             self._check(p, lambda v: (v < 0) | (v > 1), "_cnz(_lt({0}, 0.0)) or _cnz(_gt({0}, 1.0))",
                         _param_error(where, "probability outside [0, 1]", lambda v: (v < 0) | (v > 1)))  # fmt: skip
-            self.code.draws.append(where)
-            if self.large and full:
-                # laid out batch last (what follows reads it many times)
-                text = f"_lt(rng.random({shape}){last}, {p.code}, order='C')"
-            else:
-                text = f"rng.random({shape}){last} < {p.code}"
-            return self.emit_value(text, (*full, 1), np.bool_, "bool")
+            return self._bernoulli(p, full, where)
         if name == "Normal":
             m, v = params
             self._check(v, lambda x: x < 0, "_cnz(_lt({0}, 0))", _param_error(where, "variance is negative", lambda x: x < 0))
             sd = self.op("_sqrt({0})", [v], "real")
             self.code.draws.append(where)
             # loc + scale * z: what rng.normal(loc, scale) computes, draw for
-            # draw, without its slow per-element broadcasting loop
-            z = self.emit_value(self.batch_last(f"rng.standard_normal({shape})", rank), (*full, 1), np.float64, "real")
+            # draw, without its slow per-element broadcasting loop; drawn
+            # batch last, as laid out here
+            z = self.emit_value(f"rng.standard_normal({_last_shape_code(full)})", (*full, 1), np.float64, "real")
             return self.op("_add({0}, _mul({1}, {2}))", [m, sd, z], "real")
         sampler = _sampler(name, where)
         if sampler is None:
@@ -1552,6 +1612,35 @@ class _Compiler:
         args = ", ".join(p.code + first for p in params)
         dtype = np.int64 if out == "int" else np.float64
         return self.emit_value(self.batch_last(f"{self.aux(draw)}(rng, {shape}, {args})", rank), (*full, 1), dtype, out)
+
+    def _bernoulli(self, p: _Node, full: tuple[int, ...], where: str) -> _Node:
+        """Bernoulli(p) (p checked), one draw per batch element and per
+        grounding of the scope (`full`): a uniform integer u of a slot
+        compared with p * 2**32 (see `_uniforms` for the precision). Where
+        p is known, the threshold is folded, in uint32 where it fits; where
+        it is 0 (or 1) everywhere, nothing is drawn."""
+        rank = len(full) + 1
+        if p.value is not None:
+            v = np.asarray(p.value, dtype=np.float64)
+            if v.size and ((v == 0) | (v == 1)).all() and ((v == 0).all() or (v == 1).all()):
+                # (the same in every state: a constant, and the stream does
+                # not depend on the states either)
+                return self.const(np.full((1,) * rank, bool(v.flat[0])), "bool")
+        self.code.draws.append(where)
+        u = self.code.uniform(full)
+        if p.value is None:
+            return self.emit_value(f"_lt({u}, _mul({p.code}, {_TWO_32!r}))", (*full, 1), np.bool_, "bool")
+        with np.errstate(invalid="ignore"):
+            limit = np.ceil(np.asarray(p.value, dtype=np.float64) * _TWO_32)
+        if np.isfinite(limit).all() and limit.max(initial=0) <= 2**32 - 1:
+            # u < limit, in uint32
+            text = f"_lt({u}, {self.aux(limit.astype(np.uint32))})"
+        elif np.isfinite(limit).all() and limit.min(initial=1) >= 1:
+            # u <= limit - 1, in uint32 (p = 1 somewhere, never 0)
+            text = f"_le({u}, {self.aux((limit - 1).astype(np.uint32))})"
+        else:
+            text = f"_lt({u}, {self.aux(np.asarray(p.value, dtype=np.float64) * _TWO_32)})"
+        return self.emit_value(text, (*full, 1), np.bool_, "bool")
 
     def _check(
         self, x: _Node, bad: Callable[[Array], Array], test: str, fail: Callable[[Array], None]

@@ -217,6 +217,32 @@ def test_seed_with_a_planner_without_seed_option(server: Server) -> None:
     assert row["status"] == "finished"
 
 
+
+@pytest.mark.parametrize(
+    "planner,options",
+    [("mcts", ["time_per_step=0.05", "seed=4"]), ("replan", ["time_per_step=0.05", "seed=4"])],
+)
+def test_planners_that_plan_from_the_command_line(
+    server: Server, tmp_path: Path, planner: str, options: list[str]
+) -> None:
+    """mcts and replan by name from rddl-client, with options, walk the
+    corridor to its goal: noop scores -15 a round there (15 steps away from
+    the goal); walking right takes about 7 steps (moves slip 20% of the time
+    and go the wrong way 5%), about -7.5 a round."""
+    out = tmp_path / "result.json"
+    option_args = [arg for option in options for arg in ("--planner-option", option)]
+    proc = rddl_client(
+        "--port", str(server.port), "--instance", INSTANCE, "--planner", planner,
+        *option_args, "--name", f"cli-{planner}", "--json-out", str(out), "-q",
+    )  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    row, rounds = stored(server.db, f"cli-{planner}")
+    data = json.loads(out.read_text())
+    check_json(data, planner=planner, client_name=f"cli-{planner}", rounds=rounds,
+               total=row["total_reward"])  # fmt: skip
+    assert data["mean_round_reward"] > -12.0, data["rounds"]
+
+
 @pytest.mark.parametrize(
     "option,code,message",
     [
