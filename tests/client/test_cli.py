@@ -217,7 +217,6 @@ def test_seed_with_a_planner_without_seed_option(server: Server) -> None:
     assert row["status"] == "finished"
 
 
-
 @pytest.mark.parametrize(
     "planner,options",
     [("mcts", ["time_per_step=0.05", "seed=4"]), ("replan", ["time_per_step=0.05", "seed=4"])],
