@@ -31,6 +31,11 @@ PROST's trial-based heuristic tree search (THTS):
   is worth its best action; an action is worth the heuristic estimate
   (weighted as `init_weight` visits) averaged with its sampled successors'
   rewards plus discounted values, weighted by how often each was sampled.
+  An action with at most `bellman_outcomes` distinct outcomes reads every
+  outcome's value afresh from its node at each backup (a partial Bellman
+  backup, as PROST's): with transpositions a node's value also changes
+  through other paths. The root's actions are refreshed so before the
+  choice.
 * The action played is the root's best by value (most visits among equals).
 
 Legal joint actions: boolean action spaces whose joint actions (at most
@@ -248,11 +253,12 @@ class _Outcome:
     """A sampled successor of a chance node: the node, how often it was
     sampled, the rewards seen on the way and the value last backed up."""
 
-    __slots__ = ("node", "count", "value")
+    __slots__ = ("node", "count", "rsum", "value")
 
     def __init__(self, node: _Node):
         self.node = node
         self.count = 0
+        self.rsum = 0.0  # rewards seen on the way to it, summed
         self.value = 0.0
 
 
@@ -308,7 +314,7 @@ class MCTSPlanner(Planner):
         "session's remaining time spread over its remaining steps)",
         "iterations": "search exactly this many waves per turn, whatever the time (for "
         "reproducible runs; default: search until the deadline)",
-        "exploration": "UCB1 exploration constant, scaled by the node's largest |Q| (default 0.5)",
+        "exploration": "UCB1 exploration constant, scaled by the node's largest |Q| (default 2)",
         "rollout_depth": "steps of a leaf rollout (default 10; 0: to the lookahead limit)",
         "depth": "lookahead limit of the search in steps (default 0: the steps left in the "
         "round); the tree and the rollouts never look further",
@@ -329,6 +335,9 @@ class MCTSPlanner(Planner):
         "particles": "belief particles for POMDPs (default 64)",
         "transpositions": "share one node between all paths that reach the same state with "
         "the same steps left, within a turn and across the turns of a round (default yes)",
+        "bellman_outcomes": "back up an action from the current values of all its sampled "
+        "outcomes when it has at most this many (a partial Bellman backup), else from the one "
+        "sampled (default 64; 0: never)",
         "max_nodes": "forget the tree (but the root) when it holds more decision nodes than "
         "this (default 200000)",
         "seed": "integer seed (default: the client's --seed, else unseeded)",
@@ -338,7 +347,7 @@ class MCTSPlanner(Planner):
         super().__init__(**options)
         self.time_per_step = self.float_option("time_per_step", None, minimum=0.0)
         self.iterations = self.int_option("iterations", None, minimum=1)
-        self.exploration = self._float("exploration", 0.5)
+        self.exploration = self._float("exploration", 2.0)
         self.rollout_depth = self._int("rollout_depth", 10, 0)
         self.depth = self._int("depth", 0, 0)
         self.batch = self._int("batch", 1024, 1)
@@ -357,6 +366,7 @@ class MCTSPlanner(Planner):
         self.particles = self._int("particles", 64, 1)
         self.transpositions = self.bool_option("transpositions", True)
         self.max_nodes = self._int("max_nodes", 200_000, 1)
+        self.bellman_outcomes = self._int("bellman_outcomes", 64, 0)
         self.seed: int | None = self.int_option("seed")
 
         self.stats = SearchStats()
@@ -468,6 +478,7 @@ class MCTSPlanner(Planner):
                 self._expand([root], turn)
             if len(root.acts) > 1:
                 self._search(root, deadline, turn)
+                self._refresh(root, self._discount())
         except SimulationError as err:
             # A model the search cannot simulate (e.g. a distribution given bad
             # parameters by some action) must not end the session: act on what
@@ -706,18 +717,53 @@ class MCTSPlanner(Planner):
         return 1.0 if d is None else float(d)
 
     def _backup(self, trial: _Trial, gamma: float) -> None:
-        """MaxMonteCarlo backup along the trial's path."""
+        """MaxMonteCarlo backup along the trial's path.
+
+        `tot[a]` is the sum over a's sampled outcomes of (rewards seen +
+        discount x times sampled x the outcome node's value). With at most
+        `bellman_outcomes` distinct outcomes, every outcome's value is read
+        afresh from its node (a partial Bellman backup, as PROST's): with
+        transpositions a node's value also changes through other paths, and
+        a stale copy would keep an action that leads there looking as bad
+        as it first did. With more outcomes only the one sampled is
+        refreshed, to keep a backup cheap."""
         w = self.init_weight
+        limit = self.bellman_outcomes
         value = trial.node.value if trial.node.expanded else 0.0
         for node, a, outcome, reward in reversed(trial.path):
-            before = outcome.count * outcome.value
             outcome.count += 1
-            outcome.value = value
-            tot = node.tot[a] = node.tot[a] + reward + gamma * (outcome.count * value - before)
+            outcome.rsum += reward
+            outcomes = node.children[a]
+            if len(outcomes) <= limit:
+                tot = 0.0
+                for o in outcomes.values():
+                    o.value = o.node.value
+                    tot += o.rsum + gamma * o.count * o.value
+            else:
+                before = (outcome.count - 1) * outcome.value
+                outcome.value = value
+                tot = node.tot[a] + reward + gamma * (outcome.count * value - before)
+            node.tot[a] = tot
             cnt = node.cnt[a] = node.cnt[a] + 1.0
             node.nsum += 1.0
             node.qv[a] = (w * node.h[a] + tot) / (w + cnt)
             node.value = value = max(node.qv)
+
+    def _refresh(self, node: _Node, gamma: float) -> None:
+        """Every action's value of `node` from its outcomes' current values
+        (before the root's choice: some were last backed up long ago)."""
+        w = self.init_weight
+        for a, outcomes in enumerate(node.children):
+            if not outcomes or len(outcomes) > self.bellman_outcomes:
+                continue
+            tot = 0.0
+            for o in outcomes.values():
+                o.value = o.node.value
+                tot += o.rsum + gamma * o.count * o.value
+            node.tot[a] = tot
+            node.qv[a] = (w * node.h[a] + tot) / (w + node.cnt[a])
+        if node.qv:
+            node.value = max(node.qv)
 
     # -- expansion: candidates and rollouts --------------------------------
 

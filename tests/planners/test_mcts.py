@@ -149,6 +149,25 @@ def test_transpositions(sims: dict[str, Simulator], share: bool) -> None:
     assert chosen(planner.act(observe(sim, sim.initial_state(1), 1))) == {("flip", ("s2",)), ("flip", ("s3",))}
 
 
+def test_bellman_backup_reads_the_outcomes_current_values(sims: dict[str, Simulator]) -> None:
+    """In `pairs` all joint actions share one successor node, whose value
+    changes as the search goes on. With the partial Bellman backup every
+    action of the root is worth its rollout estimate averaged with (reward +
+    the successor's value as it is now), not as it was when that action
+    was last tried."""
+    sim = sims["tiny_pairs_inst"]
+    planner = planner_for(sims, "tiny_pairs_inst", **FAST)
+    planner.act(observe(sim, sim.initial_state(1), 1))
+    root = planner._root
+    assert root is not None
+    (child,) = {o.node for ch in root.children for o in ch.values()}
+    for a, outcomes in enumerate(root.children):
+        (o,) = outcomes.values()
+        expected = (root.h[a] + o.rsum + o.count * child.value) / (1.0 + root.cnt[a])
+        assert root.qv[a] == pytest.approx(expected, rel=1e-12, abs=1e-12)
+    assert root.value == max(root.qv)
+
+
 def test_trial_depth_bounds_the_descent(sims: dict[str, Simulator]) -> None:
     """With trial_depth 1 every trial stops after one level, so (with one
     successor per action) the tree never grows below the root's child."""
@@ -348,7 +367,7 @@ def test_registered_by_name() -> None:
 @pytest.mark.parametrize(
     "options,message",
     [
-        ({"explore": "1"}, r"planner 'mcts' has no option 'explore' \(valid options: batch, depth"),
+        ({"explore": "1"}, r"planner 'mcts' has no option 'explore' \(valid options: batch, bellman_outcomes, depth"),
         ({"batch": "0"}, "option 'batch' must be an integer >= 1, got '0'"),
         ({"time_per_step": "soon"}, "option 'time_per_step' must be a number, got 'soon'"),
         ({"rollout_policy": "greedy"}, "option 'rollout_policy' must be one of random, noop, best, got 'greedy'"),
