@@ -79,9 +79,38 @@ IPPC_FLOOR = {
 GOAL_FRACTION = 0.9
 
 # Student's t, two-sided 95%, by degrees of freedom
-_T95 = [12.706, 4.303, 3.182, 2.776, 2.571, 2.447, 2.365, 2.306, 2.262, 2.228,
-        2.201, 2.179, 2.160, 2.145, 2.131, 2.120, 2.110, 2.101, 2.093, 2.086,
-        2.080, 2.074, 2.069, 2.064, 2.060, 2.056, 2.052, 2.048, 2.045, 2.042]
+_T95 = [
+    12.706,
+    4.303,
+    3.182,
+    2.776,
+    2.571,
+    2.447,
+    2.365,
+    2.306,
+    2.262,
+    2.228,
+    2.201,
+    2.179,
+    2.160,
+    2.145,
+    2.131,
+    2.120,
+    2.110,
+    2.101,
+    2.093,
+    2.086,
+    2.080,
+    2.074,
+    2.069,
+    2.064,
+    2.060,
+    2.056,
+    2.052,
+    2.048,
+    2.045,
+    2.042,
+]
 
 
 def t95(df: int) -> float:
@@ -119,7 +148,9 @@ def corpus_root() -> Path:
     return Path(rddlrepository.__file__).parent / "archive" / "competitions"
 
 
-async def play(registry: Registry, instance: str, planner: Planner, name: str, rounds: int, budget: float) -> Cell:
+async def play(
+    registry: Registry, instance: str, planner: Planner, name: str, rounds: int, budget: float
+) -> Cell:
     """One session of `rounds` rounds on a fresh in-process server."""
     config = ServerConfig(port=0, rounds=rounds, timeout=budget, seed=0)
     services = Services(config, registry)
@@ -127,7 +158,9 @@ async def play(registry: Registry, instance: str, planner: Planner, name: str, r
     t0 = time.monotonic()
     async with trio.open_nursery() as nursery:
         port = await nursery.start(partial(serve, config, registry, services=services))
-        client = ClientConfig(port=port, instance=instance, client_name=f"bench-{name}", timeout=budget + 120.0)
+        client = ClientConfig(
+            port=port, instance=instance, client_name=f"bench-{name}", timeout=budget + 120.0
+        )
         result = await run_session(client, planner, name)
         nursery.cancel_scope.cancel()
     cell.rewards = [r.reward for r in result.rounds if not r.training]
@@ -138,7 +171,14 @@ async def play(registry: Registry, instance: str, planner: Planner, name: str, r
     return cell
 
 
-def run_cell(registry: Registry, instance: str, name: str, options: dict[str, str], rounds: int, budget: float) -> Cell:
+def run_cell(
+    registry: Registry,
+    instance: str,
+    name: str,
+    options: dict[str, str],
+    rounds: int,
+    budget: float,
+) -> Cell:
     try:
         planner = make_planner(name, options)
     except PlannerError as err:
@@ -163,16 +203,42 @@ def fraction(domain: str, mean: float) -> float | None:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--rounds", type=int, default=5, help="rounds per session (default 5)")
-    ap.add_argument("--seconds", type=float, default=1.0, help="seconds per step of the session budget (default 1)")
-    ap.add_argument("--domains", default="", help="comma-separated parts of domain names (default: all six)")
-    ap.add_argument("--planners", default=",".join(PLANNERS), help="comma-separated planners (default: noop,random,replan,mcts)")
+    ap.add_argument(
+        "--seconds",
+        type=float,
+        default=1.0,
+        help="seconds per step of the session budget (default 1)",
+    )
+    ap.add_argument(
+        "--domains", default="", help="comma-separated parts of domain names (default: all six)"
+    )
+    ap.add_argument(
+        "--planners",
+        default=",".join(PLANNERS),
+        help="comma-separated planners (default: noop,random,replan,mcts)",
+    )
     ap.add_argument("--instance", default="1", help="instance number (default 1)")
-    ap.add_argument("--mcts-option", action="append", default=[], metavar="KEY=VALUE", help="an option for mcts (repeatable)")
-    ap.add_argument("--replan-option", action="append", default=[], metavar="KEY=VALUE", help="an option for replan (repeatable)")
+    ap.add_argument(
+        "--mcts-option",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="an option for mcts (repeatable)",
+    )
+    ap.add_argument(
+        "--replan-option",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="an option for replan (repeatable)",
+    )
     ap.add_argument("--json", type=Path, help="also write the results here")
     ap.add_argument("-v", "--verbose", action="store_true", help="log the planners' progress")
     args = ap.parse_args(argv)
-    logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING, format="%(asctime)s %(name)s: %(message)s")
+    logging.basicConfig(
+        level=logging.INFO if args.verbose else logging.WARNING,
+        format="%(asctime)s %(name)s: %(message)s",
+    )
 
     wanted = [d.strip().lower() for d in args.domains.split(",") if d.strip()]
     domains = [d for d in DOMAINS if not wanted or any(w in d.lower() for w in wanted)]
@@ -188,7 +254,10 @@ def main(argv: list[str] | None = None) -> int:
         folder = root / DOMAINS[domain]
         registry = Registry.load(folder / "domain.rddl", folder / f"instance{args.instance}.rddl")
         if len(registry) != 1:
-            print(f"{domain}: cannot serve instance {args.instance}: {registry.broken}", file=sys.stderr)
+            print(
+                f"{domain}: cannot serve instance {args.instance}: {registry.broken}",
+                file=sys.stderr,
+            )
             continue
         instance = registry.names()[0]
         horizon = registry.get(instance).horizon or 40
@@ -199,21 +268,37 @@ def main(argv: list[str] | None = None) -> int:
             row[name] = cell
             sps = f", {cell.steps_per_second:,.0f} steps/s" if cell.steps_per_second else ""
             status = cell.text() if cell.error is None else f"n/a ({cell.error})"
-            print(f"# {domain} {name}: {status} in {cell.seconds:.0f} s{sps}", file=sys.stderr, flush=True)
+            print(
+                f"# {domain} {name}: {status} in {cell.seconds:.0f} s{sps}",
+                file=sys.stderr,
+                flush=True,
+            )
     print_table(results, planners, args)
-    print(f"\n{args.rounds} rounds per cell, {args.seconds:g} s per step, instance {args.instance}; "
-          f"run {time.strftime('%Y-%m-%d')}, {time.monotonic() - started:.0f} s in all")
+    print(
+        f"\n{args.rounds} rounds per cell, {args.seconds:g} s per step, instance {args.instance}; "
+        f"run {time.strftime('%Y-%m-%d')}, {time.monotonic() - started:.0f} s in all"
+    )
     errors = [(d, c) for d, row in results.items() for c in row.values() if c.error]
     for domain, cell in errors:
         print(f"{cell.planner} on {domain}: {cell.error}")
     if args.json:
         data = {
-            d: {p: {"rewards": c.rewards, "mean": c.mean if c.rewards else None, "ci95": c.ci if c.rewards else None,
-                    "seconds": c.seconds, "steps_per_second": c.steps_per_second, "error": c.error}
-                for p, c in row.items()}
+            d: {
+                p: {
+                    "rewards": c.rewards,
+                    "mean": c.mean if c.rewards else None,
+                    "ci95": c.ci if c.rewards else None,
+                    "seconds": c.seconds,
+                    "steps_per_second": c.steps_per_second,
+                    "error": c.error,
+                }
+                for p, c in row.items()
+            }
             for d, row in results.items()
         }
-        args.json.write_text(json.dumps({"rounds": args.rounds, "seconds": args.seconds, "results": data}, indent=2))
+        args.json.write_text(
+            json.dumps({"rounds": args.rounds, "seconds": args.seconds, "results": data}, indent=2)
+        )
     return 0
 
 

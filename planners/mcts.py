@@ -266,8 +266,22 @@ class _Node:
     """A decision node: states (one, or the particles of a POMDP root),
     steps left, candidate actions (library rows) and per-action statistics."""
 
-    __slots__ = ("key", "states", "steps", "terminal", "acts", "h", "cnt", "tot", "qv", "nsum",
-                 "pending", "children", "value", "expanded")
+    __slots__ = (
+        "key",
+        "states",
+        "steps",
+        "terminal",
+        "acts",
+        "h",
+        "cnt",
+        "tot",
+        "qv",
+        "nsum",
+        "pending",
+        "children",
+        "value",
+        "expanded",
+    )
 
     def __init__(self, key: bytes | None, states: State | None, steps: int, terminal: bool):
         self.key = key
@@ -358,7 +372,9 @@ class MCTSPlanner(Planner):
         assert policy is not None
         policy = policy.strip().lower()
         if policy not in ROLLOUT_POLICIES:
-            raise self._option_error("rollout_policy", policy, "one of " + ", ".join(ROLLOUT_POLICIES))
+            raise self._option_error(
+                "rollout_policy", policy, "one of " + ", ".join(ROLLOUT_POLICIES)
+            )
         self.rollout_policy = policy
         self.init_weight = self._float("init_weight", 1.0, minimum=1e-9)
         self.max_actions = self._int("max_actions", 128, 1)
@@ -415,8 +431,10 @@ class MCTSPlanner(Planner):
         self._constrained = bool(constraints)
         enumerated = enumerate_boolean(sim, self.enumerate_limit)
         self._enumerated = None if enumerated is None else self._lib.add(enumerated)
-        if self._enumerated is not None and self._constrained and not state_dependent(
-            session.model, constraints
+        if (
+            self._enumerated is not None
+            and self._constrained
+            and not state_dependent(session.model, constraints)
         ):
             # Constraints that read only actions and non-fluents (GameOfLife's,
             # Elevators') hold or fail alike in every state: filter the joint
@@ -455,7 +473,13 @@ class MCTSPlanner(Planner):
         log.info(
             "mcts: session reward %s; %d turns, %d waves, %d trials, %d leaves, %d simulated "
             "steps in %.1f s (%.0f steps/s)",
-            total_reward, s.turns, s.waves, s.trials, s.leaves, s.sim_steps, s.seconds,
+            total_reward,
+            s.turns,
+            s.waves,
+            s.trials,
+            s.leaves,
+            s.sim_steps,
+            s.seconds,
             s.steps_per_second,
         )
 
@@ -498,8 +522,14 @@ class MCTSPlanner(Planner):
             log.debug(
                 "mcts: turn %d (%d steps left): %d waves, %d trials, %d steps in %.3f s "
                 "(%.0f steps/s); value %.3f; chose %s",
-                obs.turn, obs.steps_left, turn.waves, turn.trials, turn.sim_steps, turn.seconds,
-                turn.steps_per_second, float(q[choice]) if len(q) else 0.0,
+                obs.turn,
+                obs.steps_left,
+                turn.waves,
+                turn.trials,
+                turn.sim_steps,
+                turn.seconds,
+                turn.steps_per_second,
+                float(q[choice]) if len(q) else 0.0,
                 ", ".join(self._sim.actions_to_names(actions)) or "noop",
             )
         return self._codec.actions(actions, index=0)
@@ -540,7 +570,11 @@ class MCTSPlanner(Planner):
         if self._last is not None:
             node, choice = self._last
             outcome = node.children[choice].get(key) if node.children else None
-            if outcome is not None and outcome.node.steps == lookahead and not outcome.node.terminal:
+            if (
+                outcome is not None
+                and outcome.node.steps == lookahead
+                and not outcome.node.terminal
+            ):
                 child = outcome.node
                 child.states = obs.state
                 return child, True
@@ -564,7 +598,9 @@ class MCTSPlanner(Planner):
         nxt = out.next_state
         if obs.fluents is not None and out.observation is not None and self._discrete_obs:
             try:
-                seen = self._codec.observation_from((n_, a, v) for (n_, a), v in obs.fluents.items())
+                seen = self._codec.observation_from(
+                    (n_, a, v) for (n_, a), v in obs.fluents.items()
+                )
             except WireError as err:
                 log.warning("mcts: cannot read the observation: %s", err)
                 seen = None
@@ -589,7 +625,9 @@ class MCTSPlanner(Planner):
     def _search(self, root: _Node, deadline: float, turn: SearchStats) -> None:
         """Waves of trials until the deadline (or `iterations` waves)."""
         n_acts = max(1, len(root.acts))
-        trials = max(1, self.batch // (n_acts * self.rollouts * (2 if self.rollout_policy == "best" else 1)))
+        trials = max(
+            1, self.batch // (n_acts * self.rollouts * (2 if self.rollout_policy == "best" else 1))
+        )
         wave_time = 0.0
         waves = 0
         while True:
@@ -840,8 +878,16 @@ class MCTSPlanner(Planner):
         returns = np.zeros(0)
         if first:
             d_all = np.concatenate(depth)
-            returns, ended = self._rollouts(leaves, np.concatenate(leaf_of), np.concatenate(start),
-                                            np.concatenate(first), d_all, modes, gamma, turn)
+            returns, ended = self._rollouts(
+                leaves,
+                np.concatenate(leaf_of),
+                np.concatenate(start),
+                np.concatenate(first),
+                d_all,
+                modes,
+                gamma,
+                turn,
+            )
             if self.extrapolate and self.rollout_depth:
                 # rollouts that reached a terminal state have their whole return
                 factor = _horizon_factor(np.concatenate(steps), d_all, gamma)
@@ -870,8 +916,17 @@ class MCTSPlanner(Planner):
             leaf.expanded = True
         turn.leaves += len(leaves)
 
-    def _rollouts(self, leaves: list[_Node], leaf_of: Array, start: Array, first: Array,
-                  depth: Array, modes: int, gamma: float, turn: SearchStats) -> tuple[Array, Array]:
+    def _rollouts(
+        self,
+        leaves: list[_Node],
+        leaf_of: Array,
+        start: Array,
+        first: Array,
+        depth: Array,
+        modes: int,
+        gamma: float,
+        turn: SearchStats,
+    ) -> tuple[Array, Array]:
         """Discounted returns of the rollouts (the first action given, then
         the rollout policy: noop for the rows of mode 1 when `modes` is 2,
         else `rollout_policy`) and which of them reached a terminal state."""
@@ -988,7 +1043,9 @@ def _stack_states(states: Iterable[State | None], names: list[str]) -> State:
     return State({k: np.concatenate([s.values[k][:1] for s in listed], axis=0) for k in names})
 
 
-def _gather_rows(per_leaf: list[State | None], leaf_of: Array, start: Array, names: list[str]) -> State:
+def _gather_rows(
+    per_leaf: list[State | None], leaf_of: Array, start: Array, names: list[str]
+) -> State:
     """Row `start[i]` of the states of leaf `leaf_of[i]`, for every i."""
     sizes = [0 if s is None else s.batch for s in per_leaf]
     offsets = np.concatenate([[0], np.cumsum(sizes)[:-1]]).astype(np.int64)

@@ -47,13 +47,19 @@ def planner_for(
 ) -> MCTSPlanner:
     planner = MCTSPlanner(**options)
     sim = sims[instance]
-    planner.start_session(SessionInfo(instance, sim.model, sim, rounds=1, time_allowed=60.0, seed=session_seed))
+    planner.start_session(
+        SessionInfo(instance, sim.model, sim, rounds=1, time_allowed=60.0, seed=session_seed)
+    )
     planner.start_round(1)
     return planner
 
 
 def observe(
-    sim: Simulator, state: State | None, turn: int, steps_left: int | None = None, fluents: bool = True
+    sim: Simulator,
+    state: State | None,
+    turn: int,
+    steps_left: int | None = None,
+    fluents: bool = True,
 ) -> Observation:
     horizon = sim.model.horizon or 1
     typed = None
@@ -97,8 +103,12 @@ def test_bandit_pulls_the_best_arm(sims: dict[str, Simulator]) -> None:
     assert abs(float(q.max()) - 4.0) < 1.0
 
 
-@pytest.mark.parametrize("steps_left,expected", [(10, "safe"), (5, "safe"), (2, "safe"), (1, "risky")])
-def test_trap_is_avoided_while_it_matters(sims: dict[str, Simulator], steps_left: int, expected: str) -> None:
+@pytest.mark.parametrize(
+    "steps_left,expected", [(10, "safe"), (5, "safe"), (2, "safe"), (1, "risky")]
+)
+def test_trap_is_avoided_while_it_matters(
+    sims: dict[str, Simulator], steps_left: int, expected: str
+) -> None:
     """`risky` has the better most likely outcome; only its 10% chance of
     the absorbing trap makes `safe` better, except in the last step."""
     sim = sims["tiny_trap_inst"]
@@ -146,7 +156,10 @@ def test_transpositions(sims: dict[str, Simulator], share: bool) -> None:
     assert root is not None
     successors = {id(o.node) for ch in root.children for o in ch.values()}
     assert len(successors) == (1 if share else 10)
-    assert chosen(planner.act(observe(sim, sim.initial_state(1), 1))) == {("flip", ("s2",)), ("flip", ("s3",))}
+    assert chosen(planner.act(observe(sim, sim.initial_state(1), 1))) == {
+        ("flip", ("s2",)),
+        ("flip", ("s3",)),
+    }
 
 
 def test_bellman_backup_reads_the_outcomes_current_values(sims: dict[str, Simulator]) -> None:
@@ -200,13 +213,18 @@ def test_enumeration_of_joint_actions(sims: dict[str, Simulator]) -> None:
     flips = acts["flip"]
     assert flips.shape == (11, 4) and not flips[0].any()  # noop first
     assert sorted(map(tuple, flips.astype(int).tolist())) == sorted(
-        {tuple(int(i in c) for i in range(4)) for c in [(), (0,), (1,), (2,), (3,), (0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3)]}
+        {
+            tuple(int(i in c) for i in range(4))
+            for c in [(), (0,), (1,), (2,), (3,), (0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3)]
+        }
     )
     assert enumerate_boolean(sims["tiny_pairs_inst"], limit=10) is None
     assert enumerate_boolean(sims["corridor_enum_inst_1"], limit=100) is None  # enum action
 
 
-@pytest.mark.parametrize("steps_left,expected", [(6, {("work", ())}), (3, {("work", ())}), (2, set()), (1, set())])
+@pytest.mark.parametrize(
+    "steps_left,expected", [(6, {("work", ())}), (3, {("work", ())}), (2, set()), (1, set())]
+)
 def test_delayed_reward_needs_enough_steps(
     sims: dict[str, Simulator], steps_left: int, expected: set[tuple[str, tuple[str, ...]]]
 ) -> None:
@@ -259,7 +277,9 @@ def test_subtree_reused_for_the_observed_successor(sims: dict[str, Simulator]) -
     assert planner.last_turn.reused == 0
 
 
-def play(sims: dict[str, Simulator], instance: str, options: dict[str, str], rounds: int = 1) -> list[list[WireFluent]]:
+def play(
+    sims: dict[str, Simulator], instance: str, options: dict[str, str], rounds: int = 1
+) -> list[list[WireFluent]]:
     sim = sims[instance]
     planner = planner_for(sims, instance, **options)
     env = np.random.default_rng(5)
@@ -280,7 +300,9 @@ def test_reproducible_with_a_seed(sims: dict[str, Simulator]) -> None:
     first = play(sims, "tiny_bandit_inst", {**options, "seed": "7"}, rounds=2)
     again = play(sims, "tiny_bandit_inst", {**options, "seed": "7"}, rounds=2)
     assert first == again
-    others = [play(sims, "tiny_bandit_inst", {**options, "seed": str(s)}, rounds=2) for s in range(8, 12)]
+    others = [
+        play(sims, "tiny_bandit_inst", {**options, "seed": str(s)}, rounds=2) for s in range(8, 12)
+    ]
     assert any(o != first for o in others)  # the seed matters (with so little search)
 
 
@@ -361,16 +383,28 @@ def test_registered_by_name() -> None:
     planner = make_planner("mcts", {"exploration": "1.5", "rollout-depth": "7", "batch": "32"})
     assert isinstance(planner, MCTSPlanner)
     assert (planner.exploration, planner.rollout_depth, planner.batch) == (1.5, 7, 32)
-    assert set(MCTSPlanner.options) >= {"time_per_step", "exploration", "rollout_depth", "batch", "seed"}
+    assert set(MCTSPlanner.options) >= {
+        "time_per_step",
+        "exploration",
+        "rollout_depth",
+        "batch",
+        "seed",
+    }
 
 
 @pytest.mark.parametrize(
     "options,message",
     [
-        ({"explore": "1"}, r"planner 'mcts' has no option 'explore' \(valid options: batch, bellman_outcomes, depth"),
+        (
+            {"explore": "1"},
+            r"planner 'mcts' has no option 'explore' \(valid options: batch, bellman_outcomes, depth",
+        ),
         ({"batch": "0"}, "option 'batch' must be an integer >= 1, got '0'"),
         ({"time_per_step": "soon"}, "option 'time_per_step' must be a number, got 'soon'"),
-        ({"rollout_policy": "greedy"}, "option 'rollout_policy' must be one of random, noop, best, got 'greedy'"),
+        (
+            {"rollout_policy": "greedy"},
+            "option 'rollout_policy' must be one of random, noop, best, got 'greedy'",
+        ),
     ],
 )
 def test_bad_options(options: dict[str, str], message: str) -> None:
@@ -402,7 +436,9 @@ async def test_session_through_server_and_client() -> None:
     watch = Watch(planner)
     with trio.fail_after(60):
         async with our_server(TINY / "trap.rddl", rounds=2, timeout=60) as (port, _, _):
-            config = ClientConfig(port=port, instance="tiny_trap_inst", client_name="mcts-test", timeout=30.0)
+            config = ClientConfig(
+                port=port, instance="tiny_trap_inst", client_name="mcts-test", timeout=30.0
+            )
             result = await run_session(config, watch, "mcts")
     assert [r.turns for r in result.rounds] == [10, 10]
     assert planner.stats.turns == 20 and planner.stats.steps_per_second > 0
