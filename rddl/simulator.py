@@ -42,11 +42,27 @@ layouts, gathers instead of products, logical operations instead of
 np.where, results written in place, temporaries freed early). Both make
 the same draws in the same order and compute the same values.
 
-Random draws are made in the order of the expression tree (left to right,
-inner first), one independent draw per batch element and per grounding of
-every variable in scope, whatever the parameters depend on, each drawn
-batch first as (batch, *scope) in C order; nothing that draws is ever
-folded, shared or skipped, so the same seed gives the same trajectory.
+Random draws: one independent draw per batch element and per grounding of
+every variable in scope, whatever the parameters depend on (Bernoulli and
+Normal drawn batch last, (*scope, batch) in C order, as the step lays
+values out; the others batch first, (batch, *scope)); nothing that draws
+is ever folded or computed once for two draws, so the same seed gives the
+same trajectory. The uniforms of every Bernoulli are drawn first, at once:
+raw 64-bit outputs of the caller's bit generator, each cut into two 32-bit
+integers u, one slot of them per draw site in the order of the expression
+tree (left to right, inner first); Bernoulli(p) is u < p * 2**32, computed
+exactly, so it fires with probability within 2**-32 of p (never for p = 0,
+always for p = 1) at half the bits and none of the conversion of
+`rng.random()`'s doubles, which cost more than the rest of the step on
+large batches. A Bernoulli whose p is 0 everywhere (or 1 everywhere) when
+the simulator is built draws nothing. The other distributions draw after
+them, in the order of the tree, through the Generator's own methods. As
+rddlsim, which evaluates only the branch taken, the branches of an `if`
+or a `switch` (which each element takes one of) draw the same uniforms:
+each element reads a uniform through one branch only, so one draw per
+grounding is made where rddlsim makes one, yet the stream does not depend
+on the branches taken; a condition that is the same everywhere draws for
+its branch alone.
 
 Semantics follow rddlsim: interm and derived fluents in level order (then
 declaration order), then next-state cpfs, then observations (which may read
@@ -177,6 +193,7 @@ class _Node:
     owner: str | None = None  # the temporary whose memory it is, if this call allocated it
     bounds: tuple[Array, Array] | None = None  # elementwise, every value lies within
     unexpanded: _Node | None = None  # the value before axes of size 1 were inserted
+    narrow: _Node | None = None  # the same values as uint8 (a count of few bools)
 
 
 @dataclass(eq=False)
@@ -472,6 +489,31 @@ def _bidx_factory() -> Callable[[int, int], Array]:
     return bidx
 
 
+def _action_in_factory() -> Callable[[Array, tuple[int, ...]], Array]:
+    cache: dict[tuple[tuple[int, ...], str], Array] = {}
+
+    def action_in(a: Array, axes: tuple[int, ...]) -> Array:
+        """An action array (batch first) as a contiguous array with its
+        axes in the order `axes` (batch last); where every value is zero,
+        a shared read-only array of zeros."""
+        # (count_nonzero is several times faster than any() on bools, and
+        # twice as slow on numbers)
+        if np.count_nonzero(a) if a.dtype == np.bool_ else a.any():
+            return np.ascontiguousarray(a.transpose(axes))
+        shape = tuple(a.shape[i] for i in axes)
+        key = (shape, a.dtype.str)
+        zeros = cache.get(key)
+        if zeros is None:
+            if len(cache) > 64:
+                cache.clear()
+            zeros = np.zeros(shape, a.dtype)
+            zeros.flags.writeable = False
+            cache[key] = zeros
+        return zeros
+
+    return action_in
+
+
 # multiply-adds per BLAS call, at most: OpenBLAS runs a smaller product on
 # one thread (its threshold is 4 * 65536); a threaded one stalls badly on a
 # busy machine, and these products are small anyway
@@ -606,6 +648,7 @@ class _Compiler:
                     self.numeric_of_code[t] = np.array(ints, dtype=np.int64)
         self.ns: dict[str, Any] = dict(_BUILTINS)
         self.ns["_bidx"] = _bidx_factory()
+        self.ns["_action_in"] = _action_in_factory()
         self._consts: dict[Any, _Node] = {}
         self._aux_count = 0
         self._tables: dict[str, str] = {}
@@ -721,6 +764,9 @@ class _Compiler:
         owner = args[0].owner if view else name
         node = _Node(name, shape, dtype, rtype, any(a.batched for a in args), owner=owner)
         self.code.meta[name] = (shape, dtype, owner, node.batched)
+        if view and len(args) == 1 and args[0].narrow is not None:
+            # (the same rearrangement of the uint8 values, computed if used)
+            node.narrow = self.op(template, [args[0].narrow], rtype, view=True)
         if view and len(args) == 1:
             b = self.bounds_of(args[0])
             if b is not None and args[0].dtype.kind != "b":  # (a bool's bounds go without saying)
@@ -1040,10 +1086,23 @@ class _Compiler:
                 right = (
                     self.to_numeric(right) if self.is_random(e.right) else self.numeric(e.right, scope)
                 )
-            return self.op("_eq({0}, {1})" if e.op == "==" else "_ne({0}, {1})", [left, right], "bool")
+            pair = self.narrowed(left, right)
+            return self.op("_eq({0}, {1})" if e.op == "==" else "_ne({0}, {1})", pair, "bool")
         left = self.numeric(e.left, scope)
         right = self.numeric(e.right, scope)
         return self.binary(e, left, right)
+
+    def narrowed(self, left: _Node, right: _Node) -> list[_Node]:
+        """The operands of a comparison: a count kept as uint8 (`narrow`)
+        and an integer constant within [0, 255] compared as uint8 (the
+        same outcome, on an eighth of the memory), else as they are."""
+        for x, k in ((left, right), (right, left)):
+            if x.narrow is None or k.value is None or k.value.dtype.kind not in "iu":
+                continue
+            if k.value.size and 0 <= k.value.min() and k.value.max() <= 255:
+                k8 = self.const(k.value.astype(np.uint8), k.rtype)
+                return [x.narrow, k8] if x is left else [k8, x.narrow]
+        return [left, right]
 
     def binary(self, e: A.Binary, left: _Node, right: _Node) -> _Node:
         """`left op right` for an arithmetic or logical operator."""
@@ -1053,7 +1112,7 @@ class _Compiler:
         if op in ("^", "|"):
             return self.logic(_COMPARISONS[op], left, right)
         if op in _COMPARISONS:
-            return self.op(f"{_COMPARISONS[op]}({{0}}, {{1}})", args, "bool")
+            return self.op(f"{_COMPARISONS[op]}({{0}}, {{1}})", self.narrowed(left, right), "bool")
         if op == "=>":
             return self.logic("_lor", self.lnot(left), right)
         if op == "<=>":
@@ -1084,8 +1143,14 @@ class _Compiler:
             elif not cond.value.any():
                 pick = False
         if pick is None:
-            then = self.compile(e.then, scope, hint)
-            else_ = self.compile(e.else_, scope, hint if then.rtype not in _DTYPES else then.rtype)
+            # each element takes one branch: the branches may draw the same
+            # uniforms (one draw per grounding, as rddlsim evaluates only
+            # the branch taken)
+            with self.alternatives() as alternative:
+                with alternative():
+                    then = self.compile(e.then, scope, hint)
+                with alternative():
+                    else_ = self.compile(e.else_, scope, hint if then.rtype not in _DTYPES else then.rtype)
             t = _join(then.rtype, else_.rtype)
             if cond.dtype == then.dtype == else_.dtype == np.bool_:
                 # a constant true or false branch: one logical operation
@@ -1108,10 +1173,10 @@ class _Compiler:
                     return self.logic("_lor", yes, no, t)
             return self.op("_where({0}, {1}, {2})", [cond, then, else_], t, bounds=_bounds_either)
         # the condition is the same everywhere: the other branch only for
-        # its draws (to keep the random stream) or its type
-        with self.branch(keep=pick or self.is_random(e.then)):
+        # its type (it draws nothing: only the branch taken draws)
+        with self.branch(keep=pick):
             then = self.compile(e.then, scope, hint)
-        with self.branch(keep=not pick or self.is_random(e.else_)):
+        with self.branch(keep=not pick):
             else_ = self.compile(e.else_, scope, hint if then.rtype not in _DTYPES else then.rtype)
         t = _join(then.rtype, else_.rtype)
         node = self.cast(then if pick else else_, np.result_type(then.dtype, else_.dtype))
@@ -1124,14 +1189,44 @@ class _Compiler:
             yield
             return
         code = self.code
-        start, count = len(code.lines), len(code.draws)
+        start, count, slots = len(code.lines), len(code.draws), len(code.slots)
         code.memo.append({})
+        code.pools.append(_Pool())
         try:
             yield
         finally:
+            code.pools.pop()
             code.memo.pop()
             del code.lines[start:]
             del code.draws[count:]
+            del code.slots[slots:]
+
+    @contextlib.contextmanager
+    def alternatives(self) -> Iterator[Callable[[], contextlib.AbstractContextManager[None]]]:
+        """Branches of which each element of the batch takes one (an `if`'s,
+        a `switch`'s cases): `with alternative():` around each. A branch
+        may draw again the uniforms that the branches before it drew, and
+        those that branches exclusive with the enclosing one drew (an
+        element's value reads each uniform at most once either way); the
+        enclosing branch may not draw any of them again."""
+        code = self.code
+        outer = code.pools[-1]
+        drawn: list[_Slot] = []  # by any of the branches, in order
+
+        @contextlib.contextmanager
+        def alternative() -> Iterator[None]:
+            free = drawn + [s for s in outer.free if not any(s is d for d in drawn)]
+            pool = _Pool(free=free)
+            code.pools.append(pool)
+            try:
+                yield
+            finally:
+                code.pools.pop()
+                drawn.extend(s for s in pool.used if not any(s is d for d in drawn))
+
+        yield alternative
+        outer.free = [s for s in outer.free if not any(s is d for d in drawn)]
+        outer.used.extend(drawn)
 
     def _Switch(self, e: A.Switch, scope: Scope, hint: str | None) -> _Node:
         subject = self.compile(e.subject, scope)
@@ -1145,13 +1240,15 @@ class _Compiler:
         values: list[_Node] = []
         default: _Node | None = None
         types: list[str] = []
-        for case in e.cases:
-            if case.label is not None:
-                node = self.compile(case.value, scope, hint)
-                values.append(node)
-        for case in e.cases:
-            if case.label is None:
-                default = self.compile(case.value, scope, hint)
+        with self.alternatives() as alternative:
+            for case in e.cases:
+                if case.label is not None:
+                    with alternative():
+                        values.append(self.compile(case.value, scope, hint))
+            for case in e.cases:
+                if case.label is None:
+                    with alternative():
+                        default = self.compile(case.value, scope, hint)
         it = iter(values)
         for case in e.cases:
             types.append((default if case.label is None else next(it)).rtype)  # type: ignore[union-attr]
@@ -1464,6 +1561,8 @@ class _Compiler:
                     out = self.op("{0} > 0", [count], "bool")
                 else:
                     out = self.op("{0}.astype(_i64)", [count], "int")
+                    if out.value is None and out.narrow is None:
+                        out.narrow = count
             else:
                 out = self.op(f"{{0}}[{rows[0]}]", [flat], f.rtype)
                 add = "_lor" if op == "exists" else "_add"
@@ -1588,7 +1687,7 @@ class _Compiler:
         # here: the stream does not depend on how values are laid out
         shape = _shape_code(full)
         rank = 1 + len(full)
-        last, first = _batch_last(rank), _batch_first(rank)
+        first = _batch_first(rank)
         if name == "Bernoulli":
             (p,) = params
             self._check(p, lambda v: (v < 0) | (v > 1), "_cnz(_lt({0}, 0.0)) or _cnz(_gt({0}, 1.0))",
@@ -1622,24 +1721,27 @@ class _Compiler:
         rank = len(full) + 1
         if p.value is not None:
             v = np.asarray(p.value, dtype=np.float64)
-            if v.size and ((v == 0) | (v == 1)).all() and ((v == 0).all() or (v == 1).all()):
+            if v.size and ((v == 0).all() or (v == 1).all()):
                 # (the same in every state: a constant, and the stream does
                 # not depend on the states either)
                 return self.const(np.full((1,) * rank, bool(v.flat[0])), "bool")
         self.code.draws.append(where)
         u = self.code.uniform(full)
         if p.value is None:
-            return self.emit_value(f"_lt({u}, _mul({p.code}, {_TWO_32!r}))", (*full, 1), np.bool_, "bool")
-        with np.errstate(invalid="ignore"):
-            limit = np.ceil(np.asarray(p.value, dtype=np.float64) * _TWO_32)
-        if np.isfinite(limit).all() and limit.max(initial=0) <= 2**32 - 1:
+            two_32 = self.const(np.full((1,) * rank, _TWO_32), "real")
+            scaled_p = self.op("_mul({0}, {1})", [p, two_32], "real")
+            return self.emit_value(f"_lt({u}, {scaled_p.code})", (*full, 1), np.bool_, "bool")
+        scaled = np.asarray(p.value, dtype=np.float64) * _TWO_32
+        limit = np.ceil(scaled)
+        valid = bool(((scaled >= 0) & (scaled <= _TWO_32)).all())  # (else it raises before)
+        if valid and limit.max(initial=0) <= 2**32 - 1:
             # u < limit, in uint32
             text = f"_lt({u}, {self.aux(limit.astype(np.uint32))})"
-        elif np.isfinite(limit).all() and limit.min(initial=1) >= 1:
+        elif valid and limit.min(initial=1) >= 1:
             # u <= limit - 1, in uint32 (p = 1 somewhere, never 0)
             text = f"_le({u}, {self.aux((limit - 1).astype(np.uint32))})"
         else:
-            text = f"_lt({u}, {self.aux(np.asarray(p.value, dtype=np.float64) * _TWO_32)})"
+            text = f"_lt({u}, {self.aux(scaled)})"
         return self.emit_value(text, (*full, 1), np.bool_, "bool")
 
     def _check(
@@ -2157,7 +2259,12 @@ class Simulator:
                 c.values[p.name] = (node, read(f"S[{p.name!r}]", p.arity))
         for i, p in enumerate(self.action_fluents):
             node = _Node(f"a{i}", (*c.shape_of(p), 1), np.dtype(self._dtype(p)), p.range, True)
-            c.values[p.name] = (node, read(f"A[{p.name!r}]", p.arity))
+            source = read(f"A[{p.name!r}]", p.arity)
+            if c.large and p.arity and not self._defaults[p.name].any():
+                # (an action left at its default everywhere, as most are in
+                # most steps, is not worth a transposing copy)
+                source = f"_action_in(A[{p.name!r}], {(*range(1, p.arity + 1), 0)})"
+            c.values[p.name] = (node, source)
 
     def _output(self, node: _Node, shape: tuple[int, ...], dtype: Any, used: set[str]) -> _Node:
         """`node` as an array of its own, shaped (*shape, B): the value

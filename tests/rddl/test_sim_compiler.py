@@ -192,12 +192,14 @@ def test_contractions_and_folds_compute_the_definitions(tmp_path: Path) -> None:
         # reward: running count minus the penalty of the actions taken
         want_r = p.sum(axis=1) - w[3]
         assert np.allclose(out.reward, want_r)
-        # p'(x) = Bernoulli(...) | a(x): the drawn values are the same as a
-        # draw of rng.random((batch, n)) against the probability
+        # p'(x) = Bernoulli(...) | a(x): the drawn values are those of the
+        # step's uniform 32-bit integers (the raw 64-bit outputs cut in two,
+        # laid out batch last) against the probability scaled by 2**32
         counts = (rel[None] & p[:, :, None]).sum(axis=1)
         prob = 0.25 + 0.5 * counts / (1 + rel.sum(axis=0))
-        u = np.random.default_rng(1).random((batch, n))
-        assert (out.next_state.values["p"] == ((u < prob) | acts["a"])).all()
+        raw = np.random.default_rng(1).bit_generator.random_raw((n * batch + 1) // 2)
+        u = raw.view(np.uint32)[: n * batch].reshape(n, batch).T
+        assert (out.next_state.values["p"] == ((u < prob * 2.0**32) | acts["a"])).all()
 
 
 def test_parameter_checks_stay_where_bounds_do_not_prove_them(tmp_path: Path) -> None:
@@ -230,9 +232,12 @@ def test_constant_conditions_and_folded_constraints(tmp_path: Path) -> None:
     )
     sim = _fold_sim(tmp_path, text)
     src = sim.source()
-    # the uniform condition picks its branch; the other one (which draws)
-    # is still compiled for its draws, so the stream is as if it were not
-    assert src.count("rng.random") == 2  # p's Bernoulli and the else branch's
+    # the uniform condition picks its branch; the other one (which would
+    # draw) is not taken, so it draws nothing (as rddlsim): the step's
+    # uniforms are p's Bernoulli's alone, one per object
+    n = len(sim.model.objects("obj"))
+    assert src.count("_uniforms(") == 1
+    assert f"_uniforms(rng, {n} * B)" in src
     out = sim.step(sim.initial_state(2), None, np.random.default_rng(0))
     assert np.allclose(out.next_state.values["q"], sim.initial_state(2).values["q"] + 1)
     # constraints that hold for every state and action fold away; one that
