@@ -7,7 +7,14 @@ per role (:mod:`.connection`). No sockets, no clock, no global state.
 
 from __future__ import annotations
 
-from .codec import MAX_MESSAGE_SIZE, XML_DECLARATION, decode, encode
+from .codec import (
+    MAX_MESSAGE_SIZE,
+    XML_DECLARATION,
+    ObservedFluentsWriter,
+    decode,
+    encode,
+    encode_turn,
+)
 from .connection import (
     NEED_DATA,
     RESUME,
@@ -73,6 +80,7 @@ __all__ = [
     "MalformedMessageError",
     "Message",
     "MessageReader",
+    "ObservedFluentsWriter",
     "ProtocolError",
     "RemoteProtocolError",
     "ResourceNotification",
@@ -88,6 +96,7 @@ __all__ = [
     "Turn",
     "decode",
     "encode",
+    "encode_turn",
     "format_value",
     "frame",
     "java_double",

@@ -20,7 +20,7 @@ import binascii
 import functools
 import operator
 import re
-from collections.abc import Callable
+from collections.abc import Callable, Iterable, Sequence
 from typing import Final
 
 from lxml import etree
@@ -30,6 +30,7 @@ from .messages import (
     ROOT_ELEMENTS,
     Actions,
     Fluent,
+    FluentValue,
     Message,
     ResourceNotification,
     ResourceRequest,
@@ -43,7 +44,14 @@ from .messages import (
 )
 from .values import _java_trim, format_value, java_double, parse_java_double, parse_java_int
 
-__all__ = ["MAX_MESSAGE_SIZE", "XML_DECLARATION", "decode", "encode"]
+__all__ = [
+    "MAX_MESSAGE_SIZE",
+    "XML_DECLARATION",
+    "ObservedFluentsWriter",
+    "decode",
+    "encode",
+    "encode_turn",
+]
 
 #: rddlsim's inbound buffer (``Server.MAX_BYTES``): the largest message we accept.
 MAX_MESSAGE_SIZE: Final = 10 * 1024 * 1024
@@ -162,14 +170,92 @@ def _fluent(out: list[str], kind: str, fluent: Fluent) -> None:
     out.append(_FLUENT_TAIL[kind])
 
 
+def _turn_head(out: list[str], turn_num: int, time_left: float, immediate_reward: float) -> None:
+    out.append("<turn>")
+    _int(out, "turn-num", turn_num)
+    _dbl(out, "time-left", time_left)
+    _dbl(out, "immediate-reward", immediate_reward)
+
+
+class ObservedFluentsWriter:
+    """The ``<observed-fluent>`` elements of turns that list one fixed sequence of
+    groundings, only the values changing from turn to turn (what a server sends: every
+    grounding of every state fluent, always in the same order).
+
+    Each element's markup is built once; :meth:`write` only picks or formats the values.
+    ``encode_turn(n, t, r, writer.write(values))`` is byte for byte
+    ``encode(Turn(n, t, r, tuple(Fluent(name, args, v) ...)))``.
+    """
+
+    __slots__ = ("groundings", "_heads", "_true", "_false")
+
+    def __init__(self, groundings: Iterable[tuple[str, Iterable[str]]]) -> None:
+        self.groundings: tuple[tuple[str, tuple[str, ...]], ...] = tuple(
+            (name, tuple(args)) for name, args in groundings
+        )
+        tail = _FLUENT_TAIL["fluent"]
+        self._heads = [_fluent_head("fluent", name, args) for name, args in self.groundings]
+        self._true = [head + "true" + tail for head in self._heads]
+        self._false = [head + "false" + tail for head in self._heads]
+
+    def __len__(self) -> int:
+        return len(self._heads)
+
+    def write(self, values: Sequence[FluentValue]) -> str:
+        """The elements for ``values`` (one per grounding, in order)."""
+        if len(values) != len(self._heads):
+            raise LocalProtocolError(
+                f"{len(values)} values for {len(self._heads)} observed fluents"
+            )
+        out = []
+        true, false = self._true, self._false
+        for i, value in enumerate(values):
+            if value is True:
+                out.append(true[i])
+            elif value is False:
+                out.append(false[i])
+            else:
+                name, args = self.groundings[i]
+                _fluent(out, "fluent", Fluent(name, args, value))
+        return "".join(out)
+
+
+def encode_turn(
+    turn_num: int,
+    time_left: float,
+    immediate_reward: float,
+    fluents_xml: str | None,
+    *,
+    declaration: bool = True,
+) -> bytes:
+    """A turn whose observed fluents are already written (:class:`ObservedFluentsWriter`);
+    ``None`` for ``<no-observed-fluents/>``. The bytes :func:`encode` writes for the same
+    turn."""
+    if (
+        type(turn_num) is int
+        and -0x8000_0000 <= turn_num <= 0x7FFF_FFFF
+        and type(time_left) is float
+        and type(immediate_reward) is float
+    ):
+        # the values every server turn has: what _turn_head writes for them, in one go
+        head = (
+            f"<turn><turn-num>{turn_num}</turn-num><time-left>{java_double(time_left)}"
+            f"</time-left><immediate-reward>{java_double(immediate_reward)}</immediate-reward>"
+        )
+    else:
+        out: list[str] = []
+        _turn_head(out, turn_num, time_left, immediate_reward)
+        head = "".join(out)
+    body = "<no-observed-fluents/>" if fluents_xml is None else fluents_xml
+    doc = (head + body + "</turn>").encode("ascii")
+    return XML_DECLARATION + doc if declaration else doc
+
+
 def _body(msg: Message) -> list[str]:
     """The root element as a list of string pieces."""
     out: list[str] = []
     if isinstance(msg, Turn):
-        out.append("<turn>")
-        _int(out, "turn-num", msg.turn_num)
-        _dbl(out, "time-left", msg.time_left)
-        _dbl(out, "immediate-reward", msg.immediate_reward)
+        _turn_head(out, msg.turn_num, msg.time_left, msg.immediate_reward)
         if msg.fluents is None:
             out.append("<no-observed-fluents/>")
         else:

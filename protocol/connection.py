@@ -36,7 +36,7 @@ from dataclasses import dataclass
 from enum import Enum
 from typing import Final, Generic, Literal, TypeAlias, TypeVar
 
-from .codec import MAX_MESSAGE_SIZE, decode, encode
+from .codec import MAX_MESSAGE_SIZE, decode, encode, encode_turn
 from .errors import LocalProtocolError, MalformedMessageError, RemoteProtocolError
 from .framing import MessageReader, frame
 from .messages import (
@@ -74,6 +74,10 @@ logger = logging.getLogger(__name__)
 class ServerState(Enum):
     """Where a server-side session stands (``SEND_*``: the server must write next)."""
 
+    # Members are singletons compared by identity; hashing them by identity (in C) keeps
+    # the TRANSITIONS lookups of every message cheap (Enum hashes its name in Python).
+    __hash__ = object.__hash__
+
     AWAIT_SESSION_REQUEST = "await-session-request"
     SEND_SESSION_INIT = "send-session-init"
     AWAIT_ROUND_REQUEST = "await-round-request"
@@ -89,6 +93,8 @@ class ServerState(Enum):
 class ClientState(Enum):
     """Where a client-side session stands (``SEND_*``: the client must write next)."""
 
+    __hash__ = object.__hash__  # see ServerState
+
     SEND_SESSION_REQUEST = "send-session-request"
     AWAIT_SESSION_INIT = "await-session-init"
     SEND_ROUND_REQUEST = "send-round-request"
@@ -103,6 +109,8 @@ class ClientState(Enum):
 
 class Direction(Enum):
     """Who writes the message of a transition, seen from the connection's own side."""
+
+    __hash__ = object.__hash__  # see ServerState
 
     SEND = "send"
     RECV = "recv"
@@ -257,8 +265,8 @@ class _Connection(Generic[_StateT]):
         except RemoteProtocolError:
             self._state = self._error_state
             raise
-        key = (self._state, RECV, type(msg))
-        if key not in TRANSITIONS:
+        target = TRANSITIONS.get((self._state, RECV, type(msg)))
+        if target is None:
             expected = _names(_allowed(self._state, RECV))
             state = self._state
             self._state = self._error_state
@@ -268,26 +276,31 @@ class _Connection(Generic[_StateT]):
                 message_text=data,
             )
         self._on_receive(msg)
-        self._move(key)
+        self._move(target)
         return msg
 
     def send(self, msg: Message) -> bytes:
         """The framed bytes that put ``msg`` on the wire; raises
         :class:`LocalProtocolError` if ``msg`` may not be sent now."""
+        target = self._send_target(type(msg))
+        wire = self._frame(msg)
+        self._move(target)
+        return wire
+
+    def _send_target(self, cls: type[Message]) -> Target:
+        """Where sending a ``cls`` now leads; LocalProtocolError if it is not allowed."""
         if self._state is self._error_state:
             raise LocalProtocolError(
                 f"{self._role} connection is in the ERROR state; it cannot send"
             )
-        key = (self._state, SEND, type(msg))
-        if key not in TRANSITIONS:
+        target = TRANSITIONS.get((self._state, SEND, cls))
+        if target is None:
             raise LocalProtocolError(
                 f"{self._role} in state {self._state.name} cannot send "
-                f"<{ROOT_ELEMENTS.get(type(msg), type(msg).__name__)}>;"
+                f"<{ROOT_ELEMENTS.get(cls, cls.__name__)}>;"
                 f" allowed: {_names(_allowed(self._state, SEND))}"
             )
-        wire = self._frame(msg)
-        self._move(key)
-        return wire
+        return target
 
     # ------------------------------------------------------------------ hooks
 
@@ -307,8 +320,8 @@ class _Connection(Generic[_StateT]):
 
     # ------------------------------------------------------------------ moves
 
-    def _move(self, key: tuple[State, Direction, type[Message]]) -> None:
-        target = TRANSITIONS[key]
+    def _move(self, target: Target) -> None:
+        """Go to ``target``, looked up in TRANSITIONS by the caller."""
         if target is RESUME:
             assert self._resume is not None  # set when the detour started
             self._state, self._resume = self._resume, None
@@ -370,6 +383,32 @@ class ServerConnection(_Connection[ServerState]):
             raise
         except (TypeError, ValueError) as exc:
             raise LocalProtocolError(f"cannot encode {msg!r}: {exc}") from None
+
+    def send_turn(
+        self,
+        turn_num: int,
+        time_left: float,
+        immediate_reward: float,
+        fluents_xml: str | None,
+    ) -> bytes:
+        """``send(Turn(turn_num, time_left, immediate_reward, fluents))`` for a turn whose
+        observed fluents are already written by an
+        :class:`~ippc.protocol.codec.ObservedFluentsWriter` (``None`` for
+        ``<no-observed-fluents/>``): the same checks, the same move, the same bytes,
+        without building the fluents and the message (a server's every turn)."""
+        target = self._send_target(Turn)
+        try:
+            if self.no_header:
+                wire = encode_turn(turn_num, time_left, immediate_reward, fluents_xml,
+                                   declaration=False)
+            else:
+                wire = encode_turn(turn_num, time_left, immediate_reward, fluents_xml) + b"\0"
+        except LocalProtocolError:
+            raise
+        except (TypeError, ValueError) as exc:
+            raise LocalProtocolError(f"cannot encode turn {turn_num!r}: {exc}") from None
+        self._move(target)
+        return wire
 
 
 class ClientConnection(_Connection[ClientState]):

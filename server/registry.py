@@ -12,17 +12,23 @@ from __future__ import annotations
 import logging
 import os
 import re
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import numpy as np
 import trio
 
+from ..protocol import ObservedFluentsWriter
 from ..rddl import check_files
 from ..rddl.model import Model
-from ..rddl.simulator import Simulator
-from ..rddl.wire import WireCodec
+from ..rddl.simulator import Simulator, State
+from ..rddl.wire import WireCodec, WireFluent
 
 log = logging.getLogger(__name__)
+
+#: Characters of turn elements an instance keeps for states that come back.
+TURN_CACHE_CHARS = 8 * 1024 * 1024
 
 # What a problem-name may look like; anything else (a path, a NUL, ...) is
 # refused before it is looked up.
@@ -37,9 +43,15 @@ class Instance:
     model: Model
     task: bytes
     _compiled: tuple[Simulator, WireCodec] | None = field(default=None, repr=False)
-    # wire fluent -> protocol Fluent, shared by the sessions (values repeat)
-    fluents: dict[tuple[object, ...], object] = field(default_factory=dict, repr=False)
     _lock: trio.Lock | None = field(default=None, repr=False)
+    # writes the observed fluents of this instance's turns; shared by the sessions
+    _writer: ObservedFluentsWriter | None = field(default=None, repr=False)
+    # turns already written, by the bytes of the arrays they were written from
+    _turns: dict[tuple[tuple[str, bytes], ...], tuple[list[WireFluent] | None, str | None]] = field(
+        default_factory=dict, repr=False
+    )
+    _turn_chars: int = field(default=0, repr=False)
+    _key_names: tuple[str, ...] = field(default=(), repr=False)
 
     @property
     def horizon(self) -> int | None:
@@ -61,6 +73,50 @@ class Instance:
         if self._compiled is None:
             self._compiled = self._compile()
         return self._compiled
+
+    def fluents_writer(self, sent: Sequence[WireFluent]) -> ObservedFluentsWriter:
+        """The writer for turns that list the groundings of `sent` (a
+        `WireCodec.turn_fluents` listing: always the same groundings in the
+        same order for one instance), built at the first turn."""
+        writer = self._writer
+        if writer is None or len(writer) != len(sent):
+            writer = ObservedFluentsWriter([(name, args) for name, args, _ in sent])
+            self._writer = writer
+        return writer
+
+    def turn_fluents(
+        self, codec: WireCodec, state: State, observation: Mapping[str, np.ndarray] | None
+    ) -> tuple[list[WireFluent] | None, str | None]:
+        """What a turn lists in `state` (MDP) or with `observation` (POMDP):
+        `codec.turn_fluents(...)` and its observed-fluent elements as the
+        instance's writer writes them (None, None for a POMDP's first turn).
+
+        States repeat (sysadmin's ten computers have 1024), so turns are
+        kept by the bytes and types of the arrays the listing is made of,
+        up to `TURN_CACHE_CHARS` characters of elements per instance; after
+        that new states are written every time."""
+        source = observation if codec.pomdp else state.values
+        if source is None:
+            return None, None
+        names = self._key_names
+        if len(names) != len(source):
+            names = self._key_names = tuple(sorted(source))
+        key: tuple[tuple[str, bytes], ...] | None
+        try:
+            key = tuple([(a.dtype.char, a.tobytes()) for a in [source[n] for n in names]])
+        except KeyError:  # another set of fluents than the last time: not cached
+            key = None
+        if key is not None:
+            hit = self._turns.get(key)
+            if hit is not None:
+                return hit
+        sent = codec.turn_fluents(state, observation)
+        xml = None if sent is None else self.fluents_writer(sent).write([t[2] for t in sent])
+        # object arrays hold pointers, not values: never a key
+        if key is not None and self._turn_chars < TURN_CACHE_CHARS and all(c != "O" for c, _ in key):
+            self._turns[key] = (sent, xml)
+            self._turn_chars += len(xml or "") + 64
+        return sent, xml
 
     def _compile(self) -> tuple[Simulator, WireCodec]:
         sim = Simulator(self.model)

@@ -18,6 +18,8 @@ the session; under monitor-execution a round-request without
 from __future__ import annotations
 
 import logging
+import os
+import socket
 import time
 from dataclasses import dataclass, field
 from typing import Any
@@ -29,7 +31,6 @@ from ..protocol import (
     MAX_MESSAGE_SIZE,
     Actions,
     ConnectionClosed,
-    Fluent,
     MessageReader,
     ProtocolError,
     ResourceNotification,
@@ -41,7 +42,6 @@ from ..protocol import (
     SessionEnd,
     SessionInit,
     SessionRequest,
-    Turn,
     encode,
 )
 from ..protocol import NEED_DATA as _NEED_DATA
@@ -77,6 +77,10 @@ class Services:
         return self.next_id
 
 
+# Messages a session may take from its buffer without waiting before it yields.
+_YIELD_EVERY = 32
+
+
 class _Channel:
     """A stream, its protocol state machine, and the transcript."""
 
@@ -95,6 +99,21 @@ class _Channel:
         # boundaries for the transcript (the state machine keeps its own).
         self._frames = MessageReader("nul", max_size=services.config.max_message_size + 1)
         self.last_message: bytes | None = None
+        # A TCP stream is read and written through a plain non-blocking socket
+        # on a dup of its descriptor, waiting with trio only when the kernel
+        # says "would block": a turn costs one scheduler pass (the wait for
+        # the client's answer) instead of trio's several per send and receive.
+        # Any other stream goes through its own methods.
+        self._raw: socket.socket | None = None
+        self._fd = -1
+        self._unwaited = 0  # messages handed out since the last wait for bytes
+        if isinstance(stream, trio.SocketStream):
+            try:
+                self._fd = stream.socket.fileno()
+                self._raw = socket.socket(fileno=os.dup(self._fd))
+                self._raw.setblocking(False)
+            except OSError:
+                self._raw = None
 
     def _t(self) -> float:
         return round(time.monotonic() - self.t0, 4)
@@ -133,13 +152,21 @@ class _Channel:
         while True:
             event = self.conn.next_event()
             if event is not _NEED_DATA:
+                self._unwaited += 1
+                if self._unwaited >= _YIELD_EVERY:
+                    # messages a client wrote ahead are all buffered: the plain-socket
+                    # sends do not yield, so yield here now and then (fairness, and
+                    # a shutdown's cancellation gets in)
+                    self._unwaited = 0
+                    await trio.lowlevel.checkpoint()
                 return event
+            self._unwaited = 0
             try:
                 if self.idle_timeout is not None:
                     with trio.fail_after(self.idle_timeout):
-                        data = await self.stream.receive_some(65536)
+                        data = await self._receive_some()
                 else:
-                    data = await self.stream.receive_some(65536)
+                    data = await self._receive_some()
             except trio.TooSlowError:
                 raise SessionDropped(f"client silent for {self.idle_timeout:g} s (--idle-timeout)") from None
             except (trio.BrokenResourceError, trio.ClosedResourceError, OSError) as err:
@@ -147,13 +174,54 @@ class _Channel:
             self._record_inbound(data)
             self.conn.receive_data(data)
 
-    async def send(self, msg: Any) -> None:
-        data = self.conn.send(msg)
-        try:
+    async def _receive_some(self) -> bytes | bytearray:
+        raw = self._raw
+        if raw is None:
+            return await self.stream.receive_some(65536)
+        while True:
+            # waiting first spares a recv that would fail: the client has
+            # rarely answered already when we get here
+            await trio.lowlevel.wait_readable(self._fd)
+            try:
+                return raw.recv(65536)
+            except (BlockingIOError, InterruptedError):
+                continue
+
+    async def _send_all(self, data: bytes) -> None:
+        raw = self._raw
+        if raw is None:
             await self.stream.send_all(data)
+            return
+        view = memoryview(data)
+        while view:
+            try:
+                n = raw.send(view)
+            except (BlockingIOError, InterruptedError):
+                await trio.lowlevel.wait_writable(self._fd)
+                continue
+            view = view[n:]
+
+    def close_raw(self) -> None:
+        """Close the dup of the socket (the stream itself is closed apart)."""
+        if self._raw is not None:
+            self._raw.close()
+            self._raw = None
+
+    async def send(self, msg: Any) -> None:
+        await self._emit(self.conn.send(msg), type(msg).__name__)
+
+    async def send_turn(self, turn_num: int, time_left: float, reward: float, fluents_xml: str | None) -> None:
+        """A turn whose observed fluents are already written (see
+        `ServerConnection.send_turn`)."""
+        await self._emit(self.conn.send_turn(turn_num, time_left, reward, fluents_xml), "Turn")
+
+    async def _emit(self, data: bytes, what: str) -> None:
+        try:
+            await self._send_all(data)
         except (trio.BrokenResourceError, trio.ClosedResourceError, OSError) as err:
-            raise SessionDropped(f"connection lost while sending {type(msg).__name__}: {err}") from None
-        self._write("message", "s2c", data, conn=self.session_id, t=self._t())
+            raise SessionDropped(f"connection lost while sending {what}: {err}") from None
+        if self.transcript is not None or self._early is not None:
+            self._write("message", "s2c", data, conn=self.session_id, t=self._t())
 
 
 def _time_left_ms(start: float, allowed_ms: float) -> int:
@@ -240,6 +308,7 @@ class Session:
             if self.channel.transcript is not None:
                 self.channel._write("eof", "s2c", conn=self.id, t=self.channel._t())  # we close
                 self.channel.transcript.close()
+            self.channel.close_raw()
             try:
                 await self.stream.aclose()
             except (trio.BrokenResourceError, trio.ClosedResourceError, OSError):
@@ -354,28 +423,24 @@ class Session:
             self.round_db_id = store.start_round(self.db_id, round_num=rnd.number, counted=rnd.counted, started_at=time.time())
         state: State = sim.initial_state(1)
         observation: dict[str, np.ndarray] | None = None
-        # one Fluent object per (grounding, value), made once per instance
-        fluent_of = instance.fluents.get
-
-        def new_fluent(t: WireFluent) -> Fluent:
-            f = Fluent(*t)
-            if len(instance.fluents) < 100_000:  # real values rarely repeat: bounded
-                instance.fluents[t] = f
-            return f
-
+        channel = self.channel
         invariants = bool(sim._invariants)
         discount = instance.model.discount
         horizon = instance.horizon
         cur_discount = 1.0
         out_of_time = False
+        # what a noop decodes to, the same every turn (stepped as None: the
+        # simulator's own cached defaults)
+        noop = codec.actions_from(())
         while True:
-            sent = codec.turn_fluents(state, observation)
-            wire = None if sent is None else tuple([fluent_of(t) or new_fluent(t) for t in sent])
-            await self.channel.send(Turn(turn_num=rnd.turns + 1, time_left=float(self._ms()), immediate_reward=rnd.immediate, fluents=wire))
-            sent_at = time.time()
+            sent, xml = instance.turn_fluents(codec, state, observation)
+            await channel.send_turn(rnd.turns + 1, float(self._ms()), rnd.immediate, xml)
+            if store is not None:
+                sent_at = time.time()
             actions = await self._expect(Actions)
-            received_at = time.time()
-            decoded = self._decode_actions(codec, actions)
+            if store is not None:
+                received_at = time.time()
+            decoded = self._decode_actions(codec, actions) if actions.actions else noop
             why = codec.check(state, decoded)
             if why is not None:
                 if cfg.individual_session:
@@ -385,9 +450,9 @@ class Session:
                 rnd.status = "illegal-action"
                 break
             try:
-                with np.errstate(all="ignore"):
-                    # the constraints were checked above; the step checks the invariants
-                    step = sim.step(state, decoded.arrays, rng, check=invariants)
+                # the constraints were checked above; the step checks the
+                # invariants (and keeps numpy's floating-point warnings quiet)
+                step = sim.step(state, None if decoded is noop else decoded.arrays, rng, check=invariants)
             except SimulationError as err:
                 raise SessionDropped(f"simulation error in round {rnd.number}, turn {rnd.turns + 1}: {err}") from None
             reward = float(step.reward[0])
