@@ -348,13 +348,18 @@ def test_kill_9_loses_no_committed_step(tmp_path: Path) -> None:
             assert st["reward"] == float(t)
             assert st["state"] == [("running", (f"c{t}",), t % 2 == 0)]
             assert st["actions"] == [("reboot", ("c1",), True)]
-        # the rounds the child finished before the kill are closed, the last one is open
+        # the rounds the child finished before the kill are closed; the last one
+        # is open, unless the kill landed between one round's end and the next
+        # one's start (the child runs ahead of this reader on a busy machine)
         rounds = store.rounds(session["id"])
         assert [r["status"] for r in rounds[:-1]] == ["finished"] * (len(rounds) - 1)
-        assert rounds[-1]["status"] == "open"
+        last_open = rounds[-1]["status"] == "open"
+        assert last_open or rounds[-1]["status"] == "finished"
         # the next server can mark what the dead one left open
         assert store.interrupt_open("crash recovery", time.time(), every_owner=True) == 1
-        assert store.rounds(session["id"])[-1]["status"] == "interrupted"
+        assert store.sessions()[0]["status"] == "interrupted"
+        expected = "interrupted" if last_open else "finished"
+        assert store.rounds(session["id"])[-1]["status"] == expected
 
 
 def test_two_processes_write_one_file(tmp_path: Path) -> None:
