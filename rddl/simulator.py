@@ -122,7 +122,7 @@ class State:
     @property
     def batch(self) -> int:
         for v in self.values.values():
-            return int(v.shape[0])
+            return v.shape[0]  # type: ignore[no-any-return]
         return 1
 
     def copy(self) -> State:
@@ -166,6 +166,8 @@ class _Env:
 
 
 Scope = tuple[tuple[str, str], ...]  # ((var, type), ...)
+
+_new = object.__new__
 
 
 def _int_enum_value(name: str) -> int | None:
@@ -220,10 +222,11 @@ class _Code:
     blocks), the inputs it reads, and the values computed so far in each
     open block (for reuse)."""
 
-    def __init__(self, name: str, params: str, large: bool = False):
+    def __init__(self, name: str, params: str, large: bool = False, one: bool = False):
         self.name = name
         self.params = params
         self.large = large
+        self.one = one  # for a batch of exactly one (see `_Compiler._widen_constant`)
         self.inputs: dict[str, str] = {}  # local name -> expression reading it
         self.lines: list[str] = []
         self.depth = 1
@@ -313,6 +316,9 @@ _ASSIGN = re.compile(r"\s*(t\d+) = ")
 _BINARY = re.compile(r"(\s*)(t\d+) = (_add|_sub|_mul|_div|_minimum|_maximum|_land|_lor)\((\w+), (\w+)\)$")
 
 
+# the largest constant (in elements) made for a batch of one out of a smaller one
+_WIDEN_LIMIT = 4096
+_UFUNC_CALL = re.compile(r"(_\w+)\(\{0\}, \{1\}\)$")  # a template `_add({0}, {1})`
 _CALL = re.compile(r"\brng\b|\bk\d+\(")  # a draw, or a call that may raise
 
 
@@ -561,6 +567,63 @@ def _no_rng(where: str) -> None:
     raise SimulationError(f"{where}: a random draw needs a numpy Generator (rng)")
 
 
+# The floating-point error state a step runs in: numpy's current state with
+# divide, invalid and overflow ignored, exactly as `np.errstate(divide=
+# "ignore", invalid="ignore", over="ignore")` sets it. That context manager
+# costs a microsecond or more per step (it parses its arguments and builds
+# the state afresh), about a twentieth of a small step, so on numpy >= 2 (the
+# state is a context variable there) the state built for each current state
+# is kept, and a step already in it (a step within a step's caller that
+# set it) changes nothing.
+def _error_state_api() -> tuple[Any, Any]:
+    """numpy's context variable of the floating-point error state, and its
+    function that builds a state from the current one; (None, None) where
+    numpy has no such thing (1.x: `np.errstate` itself is used then)."""
+    try:
+        from numpy._core import umath
+    except ImportError:
+        return None, None
+    var, make = getattr(umath, "_extobj_contextvar", None), getattr(umath, "_make_extobj", None)
+    if var is None or make is None:
+        return None, None
+    return var, make
+
+
+_ERR_VAR, _make_extobj = _error_state_api()
+_QUIET: dict[Any, Any] = {}  # current state -> the quiet one built on it (itself for a quiet one)
+
+
+def _quiet_state(current: Any) -> Any:
+    """The quiet state built on `current` (which is the current one)."""
+    quiet = _make_extobj(divide="ignore", invalid="ignore", over="ignore")
+    if len(_QUIET) > 32:
+        _QUIET.clear()
+    # (the keys hold the states alive: an id is never reused while cached)
+    _QUIET[current] = quiet
+    _QUIET[quiet] = quiet
+    return quiet
+
+
+def _quietly(fn: Callable[..., Any], *args: Any) -> Any:
+    """`fn(*args)` with divide, invalid and overflow floating-point errors
+    ignored (as under `np.errstate(divide="ignore", invalid="ignore",
+    over="ignore")`), the caller's state restored after."""
+    if _ERR_VAR is None:
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+            return fn(*args)
+    current = _ERR_VAR.get()
+    quiet = _QUIET.get(current)
+    if quiet is None:
+        quiet = _quiet_state(current)
+    if quiet is current:
+        return fn(*args)
+    token = _ERR_VAR.set(quiet)
+    try:
+        return fn(*args)
+    finally:
+        _ERR_VAR.reset(token)
+
+
 # names the generated code uses (globals of every generated function)
 _BUILTINS: dict[str, Any] = {
     "np": np,
@@ -589,6 +652,13 @@ _BUILTINS: dict[str, Any] = {
     "_div": np.true_divide,
     "_neg": np.negative,
     "_where": np.where,
+    # reductions as `x.sum(axis=a, keepdims=k)` and the like make them:
+    # `_sum(x, a)`, `_sum(x, a, None, None, k)`, `_all(x, a, _bool)`...
+    "_sum": np.add.reduce,
+    "_all": np.logical_and.reduce,
+    "_any": np.logical_or.reduce,
+    "_min_reduce": np.minimum.reduce,
+    "_max_reduce": np.maximum.reduce,
     "_select": np.select,
     "_minimum": np.minimum,
     "_maximum": np.maximum,
@@ -713,10 +783,11 @@ class _Compiler:
     def scalar(self, value: Any, scope: Scope, rtype: str, dtype: Any) -> _Node:
         return self.const(np.asarray(value, dtype=dtype).reshape((1,) * self.rank(scope)), rtype)
 
-    def begin(self, name: str, params: str, large: bool = False) -> _Code:
+    def begin(self, name: str, params: str, large: bool = False, one: bool = False) -> _Code:
         """Start a function; `large`: for large batches (where memory
-        traffic costs more than the number of numpy calls)."""
-        self.code = _Code(name, params, large)
+        traffic costs more than the number of numpy calls); `one`: for a
+        batch of exactly one."""
+        self.code = _Code(name, params, large, one)
         return self.code
 
     @property
@@ -754,6 +825,15 @@ class _Compiler:
                 pass
             else:
                 return self.const(value, rtype)
+        if len(args) == 2 and (args[0].value is None) != (args[1].value is None):
+            cast = self._cast_constant(template, args)
+            if cast is not None:
+                args = cast
+            if self.code.one:
+                wide = self._widen_constant(template, args)
+                if wide is not None:
+                    args = wide
+            text = template.format(*(a.code for a in args))
         key = ("op", text)
         hit = self.code.lookup(key)
         if hit is not None:
@@ -788,6 +868,74 @@ class _Compiler:
                     node.bounds = (np.asarray(found[0], dtype=np.float64), np.asarray(found[1], dtype=np.float64))
         self.code.store(key, node)
         return node
+
+    def _cast_constant(self, template: str, args: list[_Node]) -> list[_Node] | None:
+        """For `_ufunc({0}, {1})` with one constant argument of another
+        dtype than the ufunc's loop takes it in (`_add(k, x)`, k int64 and x
+        float64): the arguments with the constant cast to that dtype once,
+        when the simulator is built. The same values (the ufunc would make
+        this very cast every call), without the per-call casting, which
+        costs small steps about a microsecond per operation. None where
+        nothing is to cast."""
+        m = _UFUNC_CALL.match(template)
+        if m is None:
+            return None
+        ufunc = self.ns.get(m.group(1))
+        if not isinstance(ufunc, np.ufunc) or ufunc.nin != 2 or ufunc.nout != 1:
+            return None
+        i = 0 if args[0].value is not None else 1
+        k = args[i]
+        assert k.value is not None
+        given = (args[0].dtype, args[1].dtype)
+        try:
+            loop = ufunc.resolve_dtypes((*given, None))
+        except (TypeError, ValueError, AttributeError):
+            return None
+        want = np.dtype(loop[i])
+        # (a safe cast only: exact, and it leaves the loop as it was)
+        if k.dtype == want or not np.can_cast(k.dtype, want, "safe"):
+            return None
+        out = list(args)
+        out[i] = self.const(k.value.astype(want), k.rtype)
+        try:
+            if tuple(ufunc.resolve_dtypes((out[0].dtype, out[1].dtype, None))) != tuple(loop):
+                return None
+        except (TypeError, ValueError):
+            return None
+        return out
+
+    def _widen_constant(self, template: str, args: list[_Node]) -> list[_Node] | None:
+        """In the code for a batch of one, for an elementwise
+        `_ufunc({0}, {1})` of a constant and a value of more elements: the
+        arguments with the constant broadcast to the value's shape when the
+        simulator is built. The same values, and operands of one shape,
+        which numpy adds in its fast loop: a broadcast costs a small
+        operation about half a microsecond, two to three times its cost.
+        (Not for batches of more than one: the constant would then be
+        broadcast along the batch anyway.) None where nothing is to widen."""
+        m = _UFUNC_CALL.match(template)
+        if m is None:
+            return None
+        ufunc = self.ns.get(m.group(1))
+        if not isinstance(ufunc, np.ufunc) or ufunc.nin != 2 or ufunc.nout != 1 or ufunc.signature is not None:
+            return None
+        i = 0 if args[0].value is not None else 1
+        k, x = args[i], args[1 - i]
+        assert k.value is not None
+        # (the value's shape here is its shape at run time: its batch axis,
+        # last, is 1 here and 1 then)
+        if not x.batched or not x.shape or x.shape[-1] != 1 or k.shape == x.shape or x.dtype.kind not in "biuf":
+            return None
+        if int(np.prod(x.shape)) > _WIDEN_LIMIT:
+            return None
+        try:
+            if np.broadcast_shapes(k.shape, x.shape) != x.shape:
+                return None
+        except ValueError:
+            return None
+        out = list(args)
+        out[i] = self.const(np.broadcast_to(k.value, x.shape), k.rtype)
+        return out
 
     @staticmethod
     def bounds_of(node: _Node) -> tuple[Array, Array] | None:
@@ -867,11 +1015,15 @@ class _Compiler:
         """`node` summed over `axes` (as np.sum: bools counted as int64).
         For large batches, bools are counted in bytes where fewer than 256
         are added (several times faster than adding them as int64)."""
-        keep = ", keepdims=True" if keepdims else ""
+        # (the ufunc's reduce called as `x.sum(axis=...)` calls it, without
+        # numpy's Python-level wrapper: a step makes many small reductions)
+        keep = ", None, True" if keepdims else ""
         count = int(np.prod([node.shape[a] for a in axes]))
         if self.large and node.dtype == np.bool_ and count < 256:
-            return self.op(f"{{0}}.view(_u8).sum(axis={_axis_code(axes)}, dtype=_u8{keep}).astype(_i64)", [node], rtype)
-        return self.op(f"{{0}}.sum(axis={_axis_code(axes)}{keep})", [node], rtype)
+            return self.op(f"_sum({{0}}.view(_u8), {_axis_code(axes)}, _u8{keep}).astype(_i64)", [node], rtype)
+        if keepdims:
+            return self.op(f"_sum({{0}}, {_axis_code(axes)}, None{keep})", [node], rtype)
+        return self.op(f"_sum({{0}}, {_axis_code(axes)})", [node], rtype)
 
     def lnot(self, a: _Node) -> _Node:
         return self.op("_lnot({0})", [a], "bool")
@@ -1339,11 +1491,11 @@ class _Compiler:
                     times *= sizes[j]
             return out if times == 1 else self.op(f"{{0}} * {times}", [out], out.rtype)
         if op in ("min", "max"):
-            return self.op(f"{{0}}.{op}(axis={axes})", [body], bt)
+            return self.op(f"_{op}_reduce({{0}}, {axes})", [body], bt)
         if op == "forall":
-            return self.op(f"{{0}}.all(axis={axes})", [body], "bool")
+            return self.op(f"_all({{0}}, {axes}, _bool)", [body], "bool")
         if op == "exists":
-            return self.op(f"{{0}}.any(axis={axes})", [body], "bool")
+            return self.op(f"_any({{0}}, {axes}, _bool)", [body], "bool")
         raise SimulationError(f"{e.loc}: aggregation '{op}_' is not supported by the simulator")
 
     def _eliminate(
@@ -1367,7 +1519,7 @@ class _Compiler:
             if len(deps) == 1:
                 i = deps[0]
                 if op == "exists":
-                    nodes[i] = self.op(f"{{0}}.any(axis={a}, keepdims=True)", [nodes[i]], nodes[i].rtype)
+                    nodes[i] = self.op(f"_any({{0}}, {a}, _bool, None, True)", [nodes[i]], nodes[i].rtype)
                 else:
                     nodes[i] = self.total(nodes[i], (a,), nodes[i].rtype, keepdims=True)
                 changed = True
@@ -1384,7 +1536,7 @@ class _Compiler:
             else:  # (counts times bools: a product)
                 f = self.op("_mul({0}, {1})", [f, x], "real" if real else "int", bounds=_bounds_mul)
         if op == "exists":
-            return self.op(f"{{0}}.any(axis={axes})", [f], "bool")
+            return self.op(f"_any({{0}}, {axes}, _bool)", [f], "bool")
         out = self.total(f, tuple(range(n, n + k)), "real" if real else "int")
         return out if times == 1 else self.op(f"{{0}} * {times}", [out], out.rtype)
 
@@ -1505,7 +1657,7 @@ class _Compiler:
             kv = np.asarray(kv.any(axis=ax, keepdims=True) if op == "exists" else kv.sum(axis=ax, keepdims=True))
         if f_only:
             if op == "exists":
-                f = self.op(f"{{0}}.any(axis={_axis_code(tuple(f_only))}, keepdims=True)", [f], f.rtype)
+                f = self.op(f"_any({{0}}, {_axis_code(tuple(f_only))}, _bool, None, True)", [f], f.rtype)
             else:
                 f = self.total(f, tuple(f_only), f.rtype, keepdims=True)
         if not contracted:
@@ -1796,7 +1948,7 @@ class _Compiler:
                     # the same distribution everywhere: a sorted search
                     idx = f"_searchsorted({self.aux(flat[0].copy())}, rng.random({shape}) * {self.aux(total.reshape(-1)[0].copy())}, 'right')"
                 else:
-                    idx = f"(({self.aux(cum)} <= rng.random({shape})[..., None] * {self.aux(total)}).sum(axis=-1))"
+                    idx = f"_sum({self.aux(cum)} <= rng.random({shape})[..., None] * {self.aux(total)}, -1)"
                 text = f"_minimum({idx}, {k - 1})"
                 if table:
                     text = f"{table}[{text}]"
@@ -2198,6 +2350,7 @@ class Simulator:
         self._step_small = self._build_step(large=False)
         # compiled when first needed
         self._compiled: dict[str, Callable[..., Any]] = {}
+        self._step_one: Callable[..., Any] | None = None  # (`_step_fn(1)`)
 
     # -- values ------------------------------------------------------
 
@@ -2318,16 +2471,19 @@ class Simulator:
                 c.fail(self._fail_precondition, str(k), holds.code, "A", "B")
 
     def _step_fn(self, batch: int) -> Callable[..., Any]:
-        """The step function for this batch size (both make the same draws
+        """The step function for this batch size (all make the same draws
         and compute the same values)."""
+        if batch == 1:
+            return self._step_one or self._function("_step_one")
         if batch < _LARGE_BATCH:
             return self._step_small
         return self._function("_step_large")
 
-    def _build_step(self, large: bool) -> Callable[..., Any]:
+    def _build_step(self, large: bool, one: bool = False) -> Callable[..., Any]:
         c = self._c
         model = self.model
-        code = c.begin("_step_large" if large else "_step", "S, A, B, rng, check", large)
+        name = "_step_large" if large else "_step_one" if one else "_step"
+        code = c.begin(name, "S, A, B, rng, check", large, one)
         self._bind()
         if self._preconditions or model.max_nondef_actions is not None:
             with code.block("if check:"):
@@ -2389,7 +2545,7 @@ class Simulator:
 
     def _function(self, name: str) -> Callable[..., Any]:
         """A generated function, compiled on first use: `_step_large`,
-        `_legal`, `_legal_large` or `_check`."""
+        `_step_one`, `_legal`, `_legal_large` or `_check`."""
         fn = self._compiled.get(name)
         if fn is None:
             with self._lock:
@@ -2397,6 +2553,8 @@ class Simulator:
                 if fn is None:
                     if name == "_step_large":
                         fn = self._build_step(large=True)
+                    elif name == "_step_one":
+                        fn = self._step_one = self._build_step(large=False, one=True)
                     else:
                         fn = self._build_constraints(name, explain=name == "_check", large=name.endswith("_large"))
                     self._compiled[name] = fn
@@ -2509,8 +2667,7 @@ class Simulator:
         limit = self.model.max_nondef_actions
         if limit is not None:
             ok &= self.count_nondefault(actions, batch) <= limit
-        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-            ok &= self._legal_fn(batch)(state.values, self._actions(actions, batch), batch)
+        ok &= _quietly(self._legal_fn(batch), state.values, self._actions(actions, batch), batch)
         return ok
 
     def step(
@@ -2526,17 +2683,32 @@ class Simulator:
         (missing names take their default). With `check`, an illegal action
         or a violated state invariant raises `SimulationError`.
         """
-        batch = state.batch
-        acts = self._actions(actions, batch)
-        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-            nxt, reward, obs, done = self._step_fn(batch)(state.values, acts, batch, rng, check)
-        return Step(State(nxt), reward, obs, done)
+        values = state.values
+        batch = 1
+        for v in values.values():
+            batch = v.shape[0]
+            break
+        if batch == 1:
+            fn = self._step_one or self._function("_step_one")
+        elif batch < _LARGE_BATCH:
+            fn = self._step_small
+        else:
+            fn = self._function("_step_large")
+        nxt, reward, obs, done = _quietly(fn, values, self._actions(actions, batch), batch, rng, check)
+        # (what Step(State(nxt), reward, obs, done) makes, without the
+        # frozen dataclass's setattr calls: a step is short)
+        out = _new(Step)
+        fields = out.__dict__
+        fields["next_state"] = State(nxt)
+        fields["reward"] = reward
+        fields["observation"] = obs
+        fields["done"] = done
+        return out
 
     def _check_preconditions(self, env: _Env, actions: Mapping[str, Array], batch: int) -> None:
         """Raise `SimulationError` for the first constraint the actions
         violate (max-nondef-actions, then the preconditions in order)."""
-        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-            self._function("_check")(env.state.values, self._actions(actions, batch), batch)
+        _quietly(self._function("_check"), env.state.values, self._actions(actions, batch), batch)
 
     # -- action choice ---------------------------------------------
 
