@@ -27,7 +27,7 @@ What it measures
     fails on the instance (the error is printed below the table).
 
 Usage
-    python bench/planners.py                       # everything: about 45 minutes
+    python bench/planners.py                       # everything: about 20 minutes (mcts uses its whole budget)
     python bench/planners.py --rounds 3 --domains SysAdmin,GameOfLife --planners mcts
     python bench/planners.py --mcts-option rollout_depth=15 --json results.json
 """
