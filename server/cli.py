@@ -11,7 +11,13 @@ import trio
 
 from ..rddl import RDDLError
 from .app import serve
-from .config import DEFAULT_PORT, DEFAULT_ROUNDS, DEFAULT_TIMEOUT, ServerConfig
+from .config import (
+    DEFAULT_BUSY_POLL_US,
+    DEFAULT_PORT,
+    DEFAULT_ROUNDS,
+    DEFAULT_TIMEOUT,
+    ServerConfig,
+)
 from .registry import Registry
 
 
@@ -28,6 +34,7 @@ from .registry import Registry
 @click.option("--db", type=click.Path(dir_okay=False, path_type=Path), help="SQLite result database (sessions, rounds, steps).")
 @click.option("--transcripts", type=click.Path(file_okay=False, path_type=Path), help="Record every message of every session here (JSON lines).")
 @click.option("--idle-timeout", type=float, default=None, help="Close a session whose client is silent this many seconds (off by default, as rddlsim).")
+@click.option("--busy-poll-us", type=float, default=DEFAULT_BUSY_POLL_US, show_default=True, help="Microseconds a lone session polls for its client's answer before it sleeps; 0 = off.")
 @click.option("-q", "--quiet", is_flag=True, help="Log warnings only.")
 def main(
     rddl_dir: Path,
@@ -42,6 +49,7 @@ def main(
     db: Path | None,
     transcripts: Path | None,
     idle_timeout: float | None,
+    busy_poll_us: float,
     quiet: bool,
 ) -> None:
     """Serve every RDDL instance under RDDL_DIR to IPPC clients (PROST,
@@ -55,6 +63,8 @@ def main(
         raise click.BadParameter("must be at least 1", param_hint="--rounds")
     if idle_timeout is not None and idle_timeout <= 0:
         raise click.BadParameter("must be positive", param_hint="--idle-timeout")
+    if not 0 <= busy_poll_us <= 10_000:
+        raise click.BadParameter("must be between 0 and 10000", param_hint="--busy-poll-us")
     try:
         registry = Registry.load(rddl_dir)
     except RDDLError as err:
@@ -75,6 +85,7 @@ def main(
         db=db,
         transcripts=transcripts,
         idle_timeout=idle_timeout,
+        busy_poll_us=busy_poll_us,
     )
 
     async def run() -> str | None:

@@ -9,6 +9,7 @@ DEFAULT_PORT = 2323
 DEFAULT_ROUNDS = 30
 DEFAULT_TIMEOUT = 1080  # seconds: rddlsim's 18 minutes
 DEFAULT_TIME_ALLOWED_MS = 1_080_000.0
+DEFAULT_BUSY_POLL_US = 100.0  # rddl-server's --busy-poll-us
 
 
 @dataclass(frozen=True)
@@ -28,6 +29,11 @@ class ServerConfig:
     transcripts: Path | None = None
     idle_timeout: float | None = None  # seconds a client may stay silent; None = forever, as rddlsim
     max_message_size: int = 10 * 1024 * 1024
+    # microseconds a lone session polls its socket for the client's answer
+    # before it sleeps in the event loop (see _Channel._poll_briefly); 0 = never.
+    # Off here: a client in the same process could not answer during the poll.
+    # `rddl-server`, a process of its own, turns it on.
+    busy_poll_us: float = 0.0
 
     @property
     def enforce_timeout(self) -> bool:

@@ -69,6 +69,12 @@ def test_listening_line_and_bad_dir(tmp_path: Path) -> None:
     assert r.returncode != 0 and "no instance to serve" in r.stderr
 
 
+def test_busy_poll_bounds() -> None:
+    for bad in ("-1", "20000"):
+        r = subprocess.run([*SERVER, str(RDDL), "--busy-poll-us", bad], capture_output=True, text=True, timeout=60)
+        assert r.returncode == 2 and "--busy-poll-us" in r.stderr and "between 0 and 10000" in r.stderr
+
+
 def test_kill_9_loses_no_answered_step(tmp_path: Path) -> None:
     db = tmp_path / "results.db"
     proc, port = start("--rounds", "30", "--db", str(db))

@@ -273,3 +273,161 @@ async def test_a_client_that_writes_far_ahead_does_not_hold_the_server(monkeypat
         await flooder.close()
     assert len(healthy["states"]) == 5
     assert yields >= n // 32 - 1
+
+
+async def _tcp_channel_pair(
+    services: Services,
+) -> tuple[_Channel, trio.SocketStream, trio.SocketStream, trio.SocketListener]:
+    listeners = await trio.open_tcp_listeners(0, host="127.0.0.1")
+    port = listeners[0].socket.getsockname()[1]
+    client = await trio.open_tcp_stream("127.0.0.1", port)
+    server_stream = await listeners[0].accept()
+    return _Channel(server_stream, services, 1, 0.0), server_stream, client, listeners[0]
+
+
+@pytest.mark.trio
+async def test_busy_poll_takes_what_arrives_and_gives_up_after_its_window() -> None:
+    services = Services(ServerConfig(port=0, busy_poll_us=2000.0), shared_registry())
+    with trio.fail_after(10):
+        channel, server_stream, client, listener = await _tcp_channel_pair(services)
+        # nothing comes: the poll ends after its window (2 ms), not before
+        t0 = trio.current_time()
+        assert channel._poll_briefly() is None
+        assert 0.002 <= trio.current_time() - t0 < 1.0
+        # bytes already there, or arriving during the window, are returned
+        await client.send_all(b"<actions/>\0")
+        got = b""
+        for _ in range(100):
+            got += channel._poll_briefly() or b""
+            if got == b"<actions/>\0":
+                break
+            await trio.sleep(0.001)
+        assert got == b"<actions/>\0"
+        # with another session open the poll stands aside: the bytes stay for the wait
+        await client.send_all(b"<round-request/>\0")
+        await trio.sleep(0.05)
+        services.open_sessions.update({1: object(), 2: object()})
+        assert channel._poll_briefly() is None
+        services.open_sessions.clear()
+        # the end of the stream is an answer too
+        await client.aclose()
+        rest = b""
+        while (data := channel._poll_briefly()) != b"":
+            assert data is not None
+            rest += data
+        assert rest == b"<round-request/>\0"
+        channel.close_raw()
+    await server_stream.aclose()
+    await listener.aclose()
+
+
+@pytest.mark.trio
+async def test_busy_poll_off_never_reads() -> None:
+    services = Services(ServerConfig(port=0), shared_registry())
+    assert services.config.busy_poll_us == 0.0  # off unless asked (rddl-server asks)
+    with trio.fail_after(10):
+        channel, server_stream, client, listener = await _tcp_channel_pair(services)
+        await client.send_all(b"<actions/>\0")
+        await trio.sleep(0.05)
+        assert channel._poll_briefly() is None
+        assert await channel._receive_some() == b"<actions/>\0"
+        channel.close_raw()
+        await client.aclose()
+    await server_stream.aclose()
+    await listener.aclose()
+
+
+@pytest.mark.trio
+async def test_sessions_with_busy_poll_play_as_without_it() -> None:
+    results = []
+    for poll in (0.0, 50.0):
+        async with running_server(ServerConfig(port=0, rounds=2, busy_poll_us=poll)) as (port, _svc):
+            with trio.fail_after(30):
+                results.append(await noop_session(port))
+    assert results[0] == results[1]
+    assert len(results[0]["rounds"]) == 2 and results[0]["states"]
+
+
+def test_lone_session_with_busy_poll_plays_a_client_outside_the_event_loop() -> None:
+    # A client in another thread answers at once, so the poll finds most answers
+    # without entering the event loop; the session plays to its end all the same
+    # and the event loop's other tasks keep running.
+    import threading
+
+    rounds = 12
+    config = ServerConfig(port=0, rounds=rounds, busy_poll_us=5000.0)
+    ticks_during_session = 0
+    turns: list[int] = []
+
+    def client(port: int) -> None:
+        with socket.create_connection(("127.0.0.1", port), timeout=20) as sock:
+            sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+            sock.sendall(session_request())
+            buf = b""
+            n = ends = 0
+            while True:
+                while b"\0" not in buf:
+                    data = sock.recv(65536)
+                    if not data:
+                        turns.append(n)
+                        return
+                    buf += data
+                msg, _, buf = buf.partition(b"\0")
+                ends += b"<round-end>" in msg
+                if b"<session-init>" in msg or (b"<round-end>" in msg and ends < rounds):
+                    sock.sendall(b"<round-request/>\0")
+                elif b"<turn>" in msg:
+                    n += 1
+                    sock.sendall(b"<actions/>\0")
+
+    async def main() -> None:
+        nonlocal ticks_during_session
+        async with running_server(config) as (port, svc):
+            thread = threading.Thread(target=client, args=(port,), daemon=True)
+            with trio.fail_after(30):
+                thread.start()
+                while not turns:
+                    if svc.open_sessions:
+                        ticks_during_session += 1
+                    await trio.sleep(0)
+            thread.join(5)
+
+    trio.run(main)
+    assert turns == [rounds * 5]  # horizon 5
+    assert ticks_during_session >= 1
+
+
+@pytest.mark.trio
+async def test_answers_found_by_the_busy_poll_still_yield_every_so_often(monkeypatch) -> None:
+    # Each answer is on the socket before the session asks for it, so the poll
+    # (not the event loop) finds every one; the channel still yields regularly.
+    from ippc.protocol import ResourceNotification, ResourceRequest, SessionRequest
+    from ippc.server import session as session_module
+
+    yields = 0
+    original = trio.lowlevel.checkpoint
+
+    async def counting() -> None:
+        nonlocal yields
+        yields += 1
+        await original()
+
+    services = Services(ServerConfig(port=0, busy_poll_us=5000.0), shared_registry())
+    request = b'<?xml version="1.0" encoding="UTF-8"?>\n<resource-request/>\0'
+    n = 4 * session_module._YIELD_EVERY
+    with trio.fail_after(20):
+        channel, server_stream, client, listener = await _tcp_channel_pair(services)
+        await client.send_all(session_request())
+        assert isinstance(await channel.receive(), SessionRequest)
+        await channel.send(SessionInit(b"task", 1, 1, 1000.0))
+        monkeypatch.setattr(trio.lowlevel, "checkpoint", counting)
+        for _ in range(n):
+            await client.send_all(request)
+            assert isinstance(await channel.receive(), ResourceRequest)
+            await channel.send(ResourceNotification(time_left=1000.0))
+        monkeypatch.undo()
+        channel.close_raw()
+        await client.aclose()
+    await server_stream.aclose()
+    await listener.aclose()
+    assert yields >= n // session_module._YIELD_EVERY - 1
