@@ -309,6 +309,17 @@ class _Node:
 _EMPTY_INT = np.zeros(0, dtype=np.int64)
 
 
+def _bellman_total(outcomes: dict[bytes, _Outcome], gamma: float) -> float:
+    """An action's `tot` from its outcomes' current node values (each
+    outcome's kept value refreshed on the way): the sum of the rewards seen
+    plus discount x times sampled x value."""
+    tot = 0.0
+    for o in outcomes.values():
+        o.value = o.node.value
+        tot += o.rsum + gamma * o.count * o.value
+    return tot
+
+
 @dataclass
 class _Trial:
     path: list[tuple[_Node, int, _Outcome, float]]
@@ -773,10 +784,7 @@ class MCTSPlanner(Planner):
             outcome.rsum += reward
             outcomes = node.children[a]
             if len(outcomes) <= limit:
-                tot = 0.0
-                for o in outcomes.values():
-                    o.value = o.node.value
-                    tot += o.rsum + gamma * o.count * o.value
+                tot = _bellman_total(outcomes, gamma)
             else:
                 before = (outcome.count - 1) * outcome.value
                 outcome.value = value
@@ -794,11 +802,7 @@ class MCTSPlanner(Planner):
         for a, outcomes in enumerate(node.children):
             if not outcomes or len(outcomes) > self.bellman_outcomes:
                 continue
-            tot = 0.0
-            for o in outcomes.values():
-                o.value = o.node.value
-                tot += o.rsum + gamma * o.count * o.value
-            node.tot[a] = tot
+            tot = node.tot[a] = _bellman_total(outcomes, gamma)
             node.qv[a] = (w * node.h[a] + tot) / (w + node.cnt[a])
         if node.qv:
             node.value = max(node.qv)
