@@ -19,19 +19,16 @@ import trio.testing
 from ippc.protocol import (
     Fluent,
     ObservedFluentsWriter,
-    RoundInit,
-    RoundRequest,
-    ServerConnection,
     SessionInit,
     SessionRequest,
     Turn,
-    encode,
 )
 from ippc.rddl.simulator import SimulationError, State
 from ippc.server.config import ServerConfig
 from ippc.server.registry import Instance, Registry
 from ippc.server.session import Services, _Channel
 
+from ..protocol.test_fast_turn import _at_first_turn
 from .harness import RawClient, noop_session, running_server, session_request, shared_registry
 
 DOMAINS = Path(__file__).resolve().parents[2] / "domains"
@@ -39,17 +36,6 @@ DOMAINS = Path(__file__).resolve().parents[2] / "domains"
 
 def _registries() -> list[Registry]:
     return [shared_registry(), Registry.load(DOMAINS)]
-
-
-def _connection_at_turn(no_header: bool) -> ServerConnection:
-    conn = ServerConnection()
-    conn.receive_data(encode(SessionRequest("i", "c", None, no_header)) + b"\0")
-    conn.next_event()
-    conn.send(SessionInit(b"task", 1, 1, 1000.0))
-    conn.receive_data(encode(RoundRequest()) + b"\0")
-    conn.next_event()
-    conn.send(RoundInit(1, 0, 1000.0))
-    return conn
 
 
 def test_turns_written_fast_equal_the_general_encoder_on_every_instance() -> None:
@@ -72,8 +58,8 @@ def test_turns_written_fast_equal_the_general_encoder_on_every_instance() -> Non
                     assert cached_sent == sent
                 reward = float(turn) / 3.0
                 for no_header in (False, True):
-                    fast = _connection_at_turn(no_header).send_turn(turn, 1079999.0, reward, xml)
-                    slow = _connection_at_turn(no_header).send(Turn(turn, 1079999.0, reward, fluents))
+                    fast = _at_first_turn(no_header).send_turn(turn, 1079999.0, reward, xml)
+                    slow = _at_first_turn(no_header).send(Turn(turn, 1079999.0, reward, fluents))
                     assert fast == slow, (name, turn)
                 checked += 1
                 try:
@@ -238,19 +224,25 @@ async def _play_sessions(config: ServerConfig) -> None:
         assert _open_fds() <= before
 
 
+def _count_checkpoints(monkeypatch) -> list[int]:
+    """Count trio.lowlevel.checkpoint calls from now on (in the one-item list
+    returned)."""
+    count = [0]
+    original = trio.lowlevel.checkpoint
+
+    async def counting() -> None:
+        count[0] += 1
+        await original()
+
+    monkeypatch.setattr(trio.lowlevel, "checkpoint", counting)
+    return count
+
+
 @pytest.mark.trio
 async def test_a_client_that_writes_far_ahead_does_not_hold_the_server(monkeypatch) -> None:
     # Plain-socket sends do not yield to trio; a session that finds many messages
     # already buffered yields every so often by itself.
-    yields = 0
-    original = trio.lowlevel.checkpoint
-
-    async def counting() -> None:
-        nonlocal yields
-        yields += 1
-        await original()
-
-    monkeypatch.setattr(trio.lowlevel, "checkpoint", counting)
+    yields = _count_checkpoints(monkeypatch)
     n = 2000
     request = b'<?xml version="1.0" encoding="UTF-8"?>\n<resource-request/>\0'
     config = ServerConfig(port=0, rounds=1)
@@ -272,7 +264,7 @@ async def test_a_client_that_writes_far_ahead_does_not_hold_the_server(monkeypat
                     assert msg is not None and b"<resource-notification>" in msg
         await flooder.close()
     assert len(healthy["states"]) == 5
-    assert yields >= n // 32 - 1
+    assert yields[0] >= n // 32 - 1
 
 
 async def _tcp_channel_pair(
@@ -401,16 +393,8 @@ def test_lone_session_with_busy_poll_plays_a_client_outside_the_event_loop() -> 
 async def test_answers_found_by_the_busy_poll_still_yield_every_so_often(monkeypatch) -> None:
     # Each answer is on the socket before the session asks for it, so the poll
     # (not the event loop) finds every one; the channel still yields regularly.
-    from ippc.protocol import ResourceNotification, ResourceRequest, SessionRequest
+    from ippc.protocol import ResourceNotification, ResourceRequest
     from ippc.server import session as session_module
-
-    yields = 0
-    original = trio.lowlevel.checkpoint
-
-    async def counting() -> None:
-        nonlocal yields
-        yields += 1
-        await original()
 
     services = Services(ServerConfig(port=0, busy_poll_us=5000.0), shared_registry())
     request = b'<?xml version="1.0" encoding="UTF-8"?>\n<resource-request/>\0'
@@ -420,7 +404,7 @@ async def test_answers_found_by_the_busy_poll_still_yield_every_so_often(monkeyp
         await client.send_all(session_request())
         assert isinstance(await channel.receive(), SessionRequest)
         await channel.send(SessionInit(b"task", 1, 1, 1000.0))
-        monkeypatch.setattr(trio.lowlevel, "checkpoint", counting)
+        yields = _count_checkpoints(monkeypatch)
         for _ in range(n):
             await client.send_all(request)
             assert isinstance(await channel.receive(), ResourceRequest)
@@ -430,4 +414,4 @@ async def test_answers_found_by_the_busy_poll_still_yield_every_so_often(monkeyp
         await client.aclose()
     await server_stream.aclose()
     await listener.aclose()
-    assert yields >= n // session_module._YIELD_EVERY - 1
+    assert yields[0] >= n // session_module._YIELD_EVERY - 1
