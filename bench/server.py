@@ -211,11 +211,18 @@ class NoopClients:
                 c.sock.sendall(ACTIONS)
 
 
+LAST_CLIENT_CPU = [0.0]  # CPU seconds of this process (the client) in the last play()
+
+
 def play(port: int, n: int, canned: dict[str, bytes] | None = None) -> tuple[int, float]:
-    """`n` whole noop sessions at once: (turns, seconds), connects included."""
+    """`n` whole noop sessions at once: (turns, seconds), connects included.
+    The client's own CPU time is left in LAST_CLIENT_CPU[0]."""
+    c0 = time.process_time()
     t0 = time.perf_counter()
     turns = NoopClients(port, n, canned=canned).run()
-    return turns, time.perf_counter() - t0
+    secs = time.perf_counter() - t0
+    LAST_CLIENT_CPU[0] = time.process_time() - c0
+    return turns, secs
 
 
 # --------------------------------------------------- the transport's floor
@@ -392,12 +399,13 @@ def main() -> None:
                     cpu0 = cpu_seconds(pid) if pid else 0.0
                     turns, secs = play(p, 1)
                     cpu = cpu_seconds(pid) - cpu0 if pid else 0.0
-                    one[key].append((turns / secs, 1e6 * cpu / turns))
+                    one[key].append((turns / secs, 1e6 * cpu / turns, 1e6 * LAST_CLIENT_CPU[0] / turns))
             for key, runs in one.items():
-                rates = [r for r, _ in runs]
+                rates = [r for r, _, _ in runs]
                 rows.append({"server": key, "clients": 1, "turns": turns, "runs": len(runs),
                              "turns_per_s": statistics.median(rates), "min": min(rates), "max": max(rates),
-                             "server_cpu_us_per_turn": statistics.median(c for _, c in runs)})
+                             "server_cpu_us_per_turn": statistics.median(c for _, c, _ in runs),
+                             "client_cpu_us_per_turn": statistics.median(c for _, _, c in runs)})
             for n in args.clients:
                 if n == 1:
                     continue
@@ -405,11 +413,13 @@ def main() -> None:
                 for _ in range(min(args.repeat, 3)):
                     cpu0 = cpu_seconds(proc.pid)
                     turns, secs = play(port, n)
-                    runs.append((turns / secs, 1e6 * (cpu_seconds(proc.pid) - cpu0) / turns))
-                rates = [r for r, _ in runs]
+                    runs.append((turns / secs, 1e6 * (cpu_seconds(proc.pid) - cpu0) / turns,
+                                 1e6 * LAST_CLIENT_CPU[0] / turns))
+                rates = [r for r, _, _ in runs]
                 rows.append({"server": "ippc", "clients": n, "turns": turns, "runs": len(runs),
                              "turns_per_s": statistics.median(rates), "min": min(rates), "max": max(rates),
-                             "server_cpu_us_per_turn": statistics.median(c for _, c in runs)})
+                             "server_cpu_us_per_turn": statistics.median(c for _, c, _ in runs),
+                             "client_cpu_us_per_turn": statistics.median(c for _, _, c in runs)})
         finally:
             for pr in (proc, eproc, jproc):
                 stop(pr)
@@ -423,7 +433,7 @@ def main() -> None:
     print(f"one client: median of {args.repeat} sessions per server, servers taking turns; more clients: median of "
           f"{min(args.repeat, 3)} runs (min-max in brackets)")
     print("canned = a trio server that answers with fixed bytes (no XML, no simulation)")
-    print(f"{'server':8} {'clients':>7} {'turns':>8} {'turns/s':>9} {'(min-max)':>13} {'cpu us/turn':>11}  ratio to rddlsim (1 client)")
+    print(f"{'server':8} {'clients':>7} {'turns':>8} {'turns/s':>9} {'(min-max)':>13} {'cpu us/turn':>11} {'client cpu':>10}  ratio to rddlsim (1 client)")
     for r in rows:
         rate = float(r["turns_per_s"])  # type: ignore[arg-type]
         if ref:
@@ -433,7 +443,7 @@ def main() -> None:
             ratio = f"{rate / hi:5.1f}x-{rate / lo:.1f}x (quoted 420-670/s, not this run)"
         spread = f"({r['min']:.0f}-{r['max']:.0f})" if "min" in r else ""
         print(f"{r['server']:8} {r['clients']:>7} {r['turns']:>8} {rate:>9.0f} {spread:>13} "
-              f"{float(r['server_cpu_us_per_turn']):11.0f}  {ratio}")  # type: ignore[arg-type]
+              f"{float(r['server_cpu_us_per_turn']):11.0f} {float(r['client_cpu_us_per_turn']):10.0f}  {ratio}")  # type: ignore[arg-type]
     ours = [r for r in rows if r["server"] == "ippc"]
     if len(ours) > 1:
         trend = " >= ".join(f"{r['turns_per_s']:.0f}" for r in ours)
