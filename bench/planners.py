@@ -26,6 +26,18 @@ What it measures
     replan is shown as 'n/a' when ``ippc.planners.replan`` is missing or
     fails on the instance (the error is printed below the table).
 
+    Exact values (``ippc.planners.exact``): where an instance is small
+    enough to enumerate (every one here but AcademicAdvising), value
+    iteration gives the optimal expected round reward, and every decision
+    each planner makes in the run is priced by its *regret*: the expected
+    return lost by that action against the best one, in that state with
+    those steps left. A round's regrets add up to an unbiased estimate of
+    how far the planner's expected round reward lies below the optimum,
+    with far less noise than the round rewards, whose luck is shared by no
+    one. A second table prints them, with the optimum, the fraction of the
+    way from the floor to PROST that ``optimum - regret`` reaches, and the
+    exact expected round reward of noop. ``--no-exact`` skips it.
+
 Usage
     python bench/planners.py                       # everything: about 20 minutes (mcts uses its whole budget)
     python bench/planners.py --rounds 3 --domains SysAdmin,GameOfLife --planners mcts
@@ -46,9 +58,12 @@ from functools import partial
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import trio
 from ippc.client.session import ClientConfig, run_session
-from ippc.planners import Planner, PlannerError, make_planner
+from ippc.planners import Observation, Planner, PlannerError, SessionInfo, make_planner
+from ippc.planners.exact import ExactUnsupported, Solution, solve
+from ippc.rddl.wire import WireCodec
 from ippc.server.app import serve
 from ippc.server.config import ServerConfig
 from ippc.server.registry import Registry
@@ -124,6 +139,7 @@ class Cell:
     seconds: float = 0.0
     steps_per_second: float | None = None
     error: str | None = None
+    regrets: list[float] = field(default_factory=list)  # per round, with exact values
 
     @property
     def mean(self) -> float:
@@ -138,6 +154,52 @@ class Cell:
         if self.error is not None or not self.rewards:
             return "n/a"
         return f"{self.mean:8.2f} ± {self.ci:6.2f}"
+
+
+def mean_ci(values: list[float]) -> tuple[float, float]:
+    n = len(values)
+    mean = statistics.fmean(values)
+    return mean, (t95(n - 1) * statistics.stdev(values) / math.sqrt(n) if n > 1 else float("nan"))
+
+
+class Priced(Planner):
+    """Plays as `inner` does and prices each of its decisions with the
+    exact values of `solution` (the regret per round adds up in `regrets`)."""
+
+    name = "priced"
+
+    def __init__(self, inner: Planner, solution: Solution):
+        super().__init__()
+        self.inner = inner
+        self.solution = solution
+        self.regrets: list[float] = []
+        self._codec: WireCodec | None = None
+
+    @property
+    def stats(self) -> Any:
+        return getattr(self.inner, "stats", None)
+
+    def start_session(self, session: SessionInfo) -> None:
+        super().start_session(session)
+        self._codec = WireCodec(session.simulator)
+        self.inner.start_session(session)
+
+    def start_round(self, round_num: int) -> None:
+        self.regrets.append(0.0)
+        self.inner.start_round(round_num)
+
+    def act(self, obs: Observation) -> Any:
+        chosen = self.inner.act(obs)
+        assert self._codec is not None and obs.state is not None
+        arrays = self._codec.actions_from(chosen).arrays
+        self.regrets[-1] += self.solution.regret(obs.steps_left, obs.state, arrays)
+        return chosen
+
+    def end_round(self, reward: float) -> None:
+        self.inner.end_round(reward)
+
+    def end_session(self, total_reward: float) -> None:
+        self.inner.end_session(total_reward)
 
 
 def corpus_root() -> Path:
@@ -164,6 +226,8 @@ async def play(
         result = await run_session(client, planner, name)
         nursery.cancel_scope.cancel()
     cell.rewards = [r.reward for r in result.rounds if not r.training]
+    if isinstance(planner, Priced):
+        cell.regrets = planner.regrets[-len(cell.rewards) :] if cell.rewards else []
     cell.seconds = time.monotonic() - t0
     stats = getattr(planner, "stats", None)
     if stats is not None and hasattr(stats, "steps_per_second"):
@@ -178,6 +242,7 @@ def run_cell(
     options: dict[str, str],
     rounds: int,
     budget: float,
+    solution: Solution | None = None,
 ) -> Cell:
     try:
         planner = make_planner(name, options)
@@ -187,6 +252,8 @@ def run_cell(
         return Cell(name, error=f"{type(err).__name__}: {err}")
     if not isinstance(planner, Planner):
         return Cell(name, error="an external planner (not driven turn by turn)")
+    if solution is not None:
+        planner = Priced(planner, solution)
     try:
         return trio.run(play, registry, instance, planner, name, rounds, budget)
     except Exception as err:
@@ -232,6 +299,11 @@ def main(argv: list[str] | None = None) -> int:
         metavar="KEY=VALUE",
         help="an option for replan (repeatable)",
     )
+    ap.add_argument(
+        "--no-exact",
+        action="store_true",
+        help="skip the exact values and the regrets (value iteration where an instance is small)",
+    )
     ap.add_argument("--json", type=Path, help="also write the results here")
     ap.add_argument("-v", "--verbose", action="store_true", help="log the planners' progress")
     args = ap.parse_args(argv)
@@ -250,6 +322,7 @@ def main(argv: list[str] | None = None) -> int:
     root = corpus_root()
     started = time.monotonic()
     results: dict[str, dict[str, Cell]] = {}
+    exact: dict[str, Solution | str] = {}
     for domain in domains:
         folder = root / DOMAINS[domain]
         registry = Registry.load(folder / "domain.rddl", folder / f"instance{args.instance}.rddl")
@@ -263,8 +336,24 @@ def main(argv: list[str] | None = None) -> int:
         horizon = registry.get(instance).horizon or 40
         budget = args.rounds * horizon * args.seconds
         row = results[domain] = {}
+        solution: Solution | None = None
+        if not args.no_exact:
+            t0 = time.monotonic()
+            try:
+                solution = solve(registry.get(instance).model)
+                exact[domain] = solution
+                print(
+                    f"# {domain}: exact values of {len(solution.bits)} states in "
+                    f"{time.monotonic() - t0:.1f} s; optimum {solution.initial_value:.2f}",
+                    file=sys.stderr,
+                    flush=True,
+                )
+            except ExactUnsupported as err:
+                exact[domain] = str(err)
         for name in planners:
-            cell = run_cell(registry, instance, name, options.get(name, {}), args.rounds, budget)
+            cell = run_cell(
+                registry, instance, name, options.get(name, {}), args.rounds, budget, solution
+            )
             row[name] = cell
             sps = f", {cell.steps_per_second:,.0f} steps/s" if cell.steps_per_second else ""
             status = cell.text() if cell.error is None else f"n/a ({cell.error})"
@@ -274,6 +363,9 @@ def main(argv: list[str] | None = None) -> int:
                 flush=True,
             )
     print_table(results, planners, args)
+    if exact:
+        print()
+        print_exact(results, planners, exact)
     print(
         f"\n{args.rounds} rounds per cell, {args.seconds:g} s per step, instance {args.instance}; "
         f"run {time.strftime('%Y-%m-%d')}, {time.monotonic() - started:.0f} s in all"
@@ -290,6 +382,7 @@ def main(argv: list[str] | None = None) -> int:
                     "ci95": c.ci if c.rewards else None,
                     "seconds": c.seconds,
                     "steps_per_second": c.steps_per_second,
+                    "regrets": c.regrets or None,
                     "error": c.error,
                 }
                 for p, c in row.items()
@@ -297,7 +390,18 @@ def main(argv: list[str] | None = None) -> int:
             for d, row in results.items()
         }
         args.json.write_text(
-            json.dumps({"rounds": args.rounds, "seconds": args.seconds, "results": data}, indent=2)
+            json.dumps(
+                {
+                    "rounds": args.rounds,
+                    "seconds": args.seconds,
+                    "results": data,
+                    "optimum": {
+                        d: e.initial_value if isinstance(e, Solution) else None
+                        for d, e in exact.items()
+                    },
+                },
+                indent=2,
+            )
         )
     return 0
 
@@ -332,6 +436,40 @@ def print_table(results: dict[str, dict[str, Cell]], planners: list[str], args: 
         else:
             line += f"{'-':>10}"
         print(line + "  " + goal)
+
+
+def print_exact(
+    results: dict[str, dict[str, Cell]], planners: list[str], exact: dict[str, Solution | str]
+) -> None:
+    """The second table: the optimum, noop's exact value, and each planner's
+    expected round reward lost to the optimum (mean regret per round)."""
+    print("expected round reward lost to the optimum (sum of each round's regrets, mean ± 95% CI)")
+    head = f"{'instance':<30}{'states':>8}{'optimum':>9}{'noop exact':>11}"
+    head += "".join(f"{p + ' regret':>22}" for p in planners)
+    head += f"{'mcts: opt-regret':>18}{'fraction':>10}"
+    print(head)
+    print("-" * len(head))
+    for domain, row in results.items():
+        sol = exact.get(domain)
+        if not isinstance(sol, Solution):
+            print(f"{domain:<30}  not solved: {sol}")
+            continue
+        noop = sol.policy_value(np.zeros(len(sol.bits), dtype=np.int64))
+        line = f"{domain:<30}{len(sol.bits):>8}{sol.initial_value:9.2f}{noop:11.2f}"
+        for p in planners:
+            cell = row.get(p)
+            if cell is None or not cell.regrets:
+                line += f"{'n/a':>22}"
+                continue
+            m, ci = mean_ci(cell.regrets)
+            line += f"{m:12.2f} ± {ci:6.2f}  "
+        mcts = row.get("mcts")
+        if mcts is not None and mcts.regrets:
+            expected = sol.initial_value - statistics.fmean(mcts.regrets)
+            line += f"{expected:18.2f}"
+            frac = fraction(domain, expected)
+            line += f"{frac:10.2f}" if frac is not None else f"{'-':>10}"
+        print(line)
 
 
 if __name__ == "__main__":
