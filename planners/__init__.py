@@ -7,7 +7,8 @@ points of the group `ippc.planners`, ippc's own built-ins among them::
     from ippc.planners import make_planner
     planner = make_planner("random", {"seed": "1"})
 
-Built-ins: `noop` (`NoopPlanner`), `random` (`RandomPlanner`), `prost`
+Built-ins: `noop` (`NoopPlanner`), `random` (`RandomPlanner`), `mcts`, `replan`,
+`exact` (value iteration on small instances), `prost`
 (`ProstPlanner`, an `ExternalPlanner` that runs a PROST binary).
 """
 

@@ -50,6 +50,7 @@ BUILTIN_PLANNERS: dict[str, str] = {
     "prost": "ippc.planners.prost:ProstPlanner",
     "mcts": "ippc.planners.mcts:MCTSPlanner",
     "replan": "ippc.planners.replan:ReplanPlanner",
+    "exact": "ippc.planners.exact:ExactPlanner",
 }
 
 

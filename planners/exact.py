@@ -38,10 +38,11 @@ from __future__ import annotations
 import dataclasses
 import logging
 import tempfile
+import time
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
@@ -49,7 +50,9 @@ from ..rddl import ast as A
 from ..rddl.loader import load_pair
 from ..rddl.model import Model
 from ..rddl.simulator import Simulator, State
+from ..rddl.wire import WireCodec
 from ..rddl.writer import write
+from .base import Observation, Planner, PlannerError, SessionInfo, WireFluent
 from .determinise import has_draws
 from .mcts import enumerate_boolean
 
@@ -303,13 +306,15 @@ def solve(
     max_states: int = 50_000,
     max_actions: int = 4096,
     max_branching: int = 14,
+    max_transitions: int = 20_000_000,
 ) -> Solution:
     """Value iteration over the states reachable from the initial state.
 
     Raises `ExactUnsupported` when the model is outside what is enumerated
     (see the module docstring) or too large: more than `max_states`
-    reachable states, `max_actions` joint actions, or `max_branching`
-    uncertain fluents in one transition.
+    reachable states, `max_actions` joint actions, `max_branching`
+    uncertain fluents in one transition, or `max_transitions` (state,
+    action, successor) triples in all.
     """
     pm = probability_model(model)
     world = Simulator(model)
@@ -343,72 +348,98 @@ def solve(
     rng = np.random.default_rng(0)  # the original cpfs still draw; their values are unused
 
     start_bits = _state_bits(sim, sim.initial_state(1))
+    # known state codes, sorted, with their numbers (numbered as found)
+    known_codes = _codes(start_bits)
+    known_ids = np.zeros(1, dtype=np.int64)
     all_bits = [start_bits]
-    index: dict[int, int] = {int(_codes(start_bits)[0]): 0}
     legal_rows: list[Array] = []
     reward_rows: list[Array] = []
-    succ_parts: list[Array] = []
+    row_parts: list[Array] = []  # global row (state * n_act + action) of each transition
+    succ_codes: list[Array] = []
     prob_parts: list[Array] = []
-    counts: list[Array] = []
-    frontier = start_bits
+    n_transitions = 0
     combos_cache: dict[int, Array] = {}
+    frontier, first = start_bits, 0  # states numbered first, first + 1, ...
+    chunk = max(1, 65536 // n_act)
     while len(frontier):
-        m = len(frontier)
-        states = states_of(np.repeat(frontier, n_act, axis=0))
-        batch_acts = {k: np.tile(v, (m,) + (1,) * (v.ndim - 1)) for k, v in acts.items()}
-        legal = world.check_actions(
-            State({p.name: states.values[p.name] for p in world.state_fluents}), batch_acts
-        )
-        out = sim.step(states, batch_acts, rng, check=False)
-        probs = np.concatenate(
-            [out.next_state.values[k].reshape(m * n_act, -1) for k in prob_names], axis=1
-        )
-        legal_rows.append(legal.reshape(m, n_act))
-        reward_rows.append(np.asarray(out.reward, dtype=float).reshape(m, n_act))
-        certain = (probs <= 0.0) | (probs >= 1.0)
-        base = _codes(probs >= 1.0)
-        new_bits: list[Array] = []
-        for r in range(m * n_act):
-            unsure = np.flatnonzero(~certain[r])
-            u = len(unsure)
-            if u > max_branching:
-                raise ExactUnsupported(
-                    f"{u} uncertain fluents in one transition (at most {max_branching})"
-                )
-            combos = combos_cache.get(u)
-            if combos is None:
-                combos = np.array(
-                    [[(i >> j) & 1 for j in range(u)] for i in range(1 << u)], dtype=bool
-                ).reshape(1 << u, u)
-                combos_cache[u] = combos
-            p = probs[r, unsure]
-            pr = np.where(combos, p, 1.0 - p).prod(axis=1)
-            codes = base[r] + combos.astype(np.int64) @ np.left_shift(np.int64(1), unsure)
-            keep = pr > 0.0
-            codes, pr = codes[keep], pr[keep]
-            ids = np.empty(len(codes), dtype=np.int64)
-            for i, c in enumerate(codes.tolist()):
-                j = index.get(c)
-                if j is None:
-                    j = index[c] = len(index)
-                    if j >= max_states:
-                        raise ExactUnsupported(f"more than {max_states} reachable states")
-                    new_bits.append(((c >> np.arange(n_bits)) & 1).astype(bool))
-                ids[i] = j
-            succ_parts.append(ids)
-            prob_parts.append(pr)
-            counts.append(np.array([len(ids)]))
-        frontier = np.array(new_bits, dtype=bool).reshape(-1, n_bits)
+        new_codes: list[Array] = []
+        for lo in range(0, len(frontier), chunk):
+            part = frontier[lo : lo + chunk]
+            m = len(part)
+            states = states_of(np.repeat(part, n_act, axis=0))
+            batch_acts = {k: np.tile(v, (m,) + (1,) * (v.ndim - 1)) for k, v in acts.items()}
+            legal = world.check_actions(
+                State({p.name: states.values[p.name] for p in world.state_fluents}), batch_acts
+            )
+            out = sim.step(states, batch_acts, rng, check=False)
+            probs = np.concatenate(
+                [out.next_state.values[k].reshape(m * n_act, -1) for k in prob_names], axis=1
+            )
+            legal_rows.append(legal.reshape(m, n_act))
+            reward_rows.append(np.asarray(out.reward, dtype=float).reshape(m, n_act))
+            unsure = (probs > 0.0) & (probs < 1.0)
+            base = _codes(probs >= 1.0)
+            n_unsure = unsure.sum(axis=1)
+            rows0 = (first + lo) * n_act
+            for u in np.unique(n_unsure).tolist():
+                if u > max_branching:
+                    raise ExactUnsupported(
+                        f"{u} uncertain fluents in one transition (at most {max_branching})"
+                    )
+                combos = combos_cache.get(u)
+                if combos is None:
+                    grid = (np.arange(1 << u)[:, None] >> np.arange(u)[None, :]) & 1
+                    combos = combos_cache[u] = grid.astype(bool)
+                wide = combos.astype(np.int64)
+                group = np.flatnonzero(n_unsure == u)
+                step_rows = max(1, (1 << 22) >> u)  # at most ~4M successors at a time
+                for g in range(0, len(group), step_rows):
+                    rows = group[g : g + step_rows]
+                    # the uncertain positions of each row, in increasing order
+                    pos = np.nonzero(unsure[rows])[1].reshape(len(rows), u)
+                    p = probs[rows[:, None], pos]  # (rows, u)
+                    pr = np.ones((len(rows), 1 << u))
+                    for j in range(u):
+                        pr *= np.where(combos[None, :, j], p[:, j : j + 1], 1.0 - p[:, j : j + 1])
+                    weights = np.left_shift(np.int64(1), pos)  # (rows, u)
+                    codes = base[rows][:, None] + weights @ wide.T
+                    keep = pr > 0.0
+                    n_transitions += int(keep.sum())
+                    if n_transitions > max_transitions:
+                        raise ExactUnsupported(f"more than {max_transitions} transitions")
+                    row_parts.append(np.broadcast_to((rows0 + rows)[:, None], codes.shape)[keep])
+                    succ_codes.append(codes[keep])
+                    prob_parts.append(pr[keep])
+                    new_codes.append(np.unique(codes[keep]))
+        # number the successors never seen before, in code order
+        cand = np.unique(np.concatenate(new_codes)) if new_codes else np.zeros(0, np.int64)
+        at = np.searchsorted(known_codes, cand).clip(max=len(known_codes) - 1)
+        fresh = cand[known_codes[at] != cand]
+        first = int(known_ids.max()) + 1
+        if first + len(fresh) > max_states:
+            raise ExactUnsupported(f"more than {max_states} reachable states")
+        fresh_ids = first + np.arange(len(fresh), dtype=np.int64)
+        order = np.argsort(np.concatenate([known_codes, fresh]), kind="stable")
+        known_codes = np.concatenate([known_codes, fresh])[order]
+        known_ids = np.concatenate([known_ids, fresh_ids])[order]
+        frontier = ((fresh[:, None] >> np.arange(n_bits)[None, :]) & 1).astype(bool)
         if len(frontier):
             all_bits.append(frontier)
     bits = np.concatenate(all_bits)
     legal_all = np.concatenate(legal_rows)
     reward = np.concatenate(reward_rows)
     n_states = len(bits)
-    sizes = np.concatenate(counts)
+    rows_all = np.concatenate(row_parts)
+    order = np.argsort(rows_all, kind="stable")
+    succ = known_ids[np.searchsorted(known_codes, np.concatenate(succ_codes)[order])]
+    succ = succ.astype(np.int32 if n_states < 2**31 else np.int64)
+    prob = np.concatenate(prob_parts)[order]
+    del succ_codes, prob_parts
+    sizes = np.bincount(rows_all, minlength=n_states * n_act)
+    if (sizes == 0).any():
+        raise AssertionError("a transition without successors")  # probabilities sum to 1
     starts = np.concatenate([[0], np.cumsum(sizes)[:-1]]).astype(np.int64)
-    succ = np.concatenate(succ_parts)
-    prob = np.concatenate(prob_parts)
+    index = dict(zip(known_codes.tolist(), known_ids.tolist(), strict=True))
     if not legal_all.any(axis=1).all():
         raise ExactUnsupported("a reachable state where no joint action is legal")
     sol = Solution(
@@ -444,3 +475,61 @@ def solve(
         len(succ),
     )
     return sol
+
+
+# ------------------------------------------------------------ the planner
+
+
+class ExactPlanner(Planner):
+    """Plays the optimal policy of a small instance: `solve` at the start of
+    the session, then, every turn, the best joint action for the state and
+    the steps left (the first of equals). A reference for other planners:
+    nothing plays better in expectation."""
+
+    name: ClassVar[str] = "exact"
+    options: ClassVar[dict[str, str]] = {
+        "max_states": "refuse instances with more reachable states (default 50000)",
+        "max_transitions": "refuse instances with more (state, action, successor) triples "
+        "(default 20000000; peak memory about 75 bytes each)",
+    }
+
+    def __init__(self, **options: str) -> None:
+        super().__init__(**options)
+        max_states = self.int_option("max_states", 50_000, minimum=1)
+        max_transitions = self.int_option("max_transitions", 20_000_000, minimum=1)
+        assert max_states is not None and max_transitions is not None
+        self.max_states, self.max_transitions = max_states, max_transitions
+        self.solution: Solution | None = None
+        self._codec: WireCodec | None = None
+
+    def start_session(self, session: SessionInfo) -> None:
+        super().start_session(session)
+        started = time.monotonic()
+        try:
+            self.solution = solve(
+                session.model, max_states=self.max_states, max_transitions=self.max_transitions
+            )
+        except ExactUnsupported as err:
+            raise PlannerError(f"cannot solve {session.instance}: {err}") from None
+        self._codec = WireCodec(session.simulator)
+        log.info(
+            "exact: %s solved in %.1f s: %d states, optimum %.4f",
+            session.instance,
+            time.monotonic() - started,
+            len(self.solution.bits),
+            self.solution.initial_value,
+        )
+
+    def act(self, obs: Observation) -> list[WireFluent]:
+        if self.solution is None or self._codec is None:
+            raise PlannerError("exact: act() called before start_session()")
+        if obs.state is None:
+            raise PlannerError("exact: no state to act on (a POMDP)")
+        steps = max(1, min(obs.steps_left, len(self.solution.q) - 1))
+        try:
+            best = self.solution.best(steps, obs.state)
+        except KeyError:
+            # the solved model never reaches this state: the server's model differs
+            log.warning("exact: turn %d: a state the solution never reached; noop", obs.turn)
+            return []
+        return self._codec.actions(best, index=0)

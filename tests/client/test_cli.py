@@ -242,6 +242,27 @@ def test_planners_that_plan_from_the_command_line(
     assert data["mean_round_reward"] > -12.0, data["rounds"]
 
 
+def test_exact_planner_from_the_command_line(server: Server, tmp_path: Path) -> None:
+    """`--planner exact` solves print_fetch_inst_1 (480 reachable states,
+    optimum 12.53 a round) and plays it; noop scores -20 a round there. On
+    the corridor, whose termination it does not enumerate, it stops before
+    playing with the reason."""
+    out = tmp_path / "result.json"
+    proc = rddl_client(
+        "--port", str(server.port), "--instance", "print_fetch_inst_1", "--planner", "exact",
+        "--name", "cli-exact", "--json-out", str(out), "-q",
+    )  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    data = json.loads(out.read_text())
+    assert data["planner"] == "exact" and len(data["rounds"]) == 2
+    assert data["mean_round_reward"] > 0.0, data["rounds"]
+    proc = rddl_client("--port", str(server.port), "--instance", INSTANCE, "--planner", "exact")
+    assert proc.returncode == 1
+    assert "planner exact: cannot solve corridor_enum_inst_1: a termination condition" in (
+        proc.stderr
+    )
+
+
 @pytest.mark.parametrize(
     "option,code,message",
     [

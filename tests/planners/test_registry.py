@@ -65,7 +65,7 @@ def test_builtins_by_name() -> None:
 
 
 def test_unknown_name_lists_the_known_ones() -> None:
-    with pytest.raises(PlannerError, match=r"unknown planner 'nosuch' \(known planners: mcts, noop, prost, random"):
+    with pytest.raises(PlannerError, match=r"unknown planner 'nosuch' \(known planners: exact, mcts, noop, prost, random"):
         find_planner("nosuch")
 
 
@@ -81,7 +81,7 @@ def test_third_party_entry_point(monkeypatch: pytest.MonkeyPatch) -> None:
 
 def test_builtins_without_package_metadata(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setattr(importlib.metadata, "entry_points", entry_points_with(keep_builtins=False))
-    assert planner_names() == ["mcts", "noop", "prost", "random", "replan"]
+    assert planner_names() == ["exact", "mcts", "noop", "prost", "random", "replan"]
     assert find_planner("random") is RandomPlanner
 
     def broken(**kw: Any) -> Any:
