@@ -237,6 +237,8 @@ class _Code:
         # innermost branch's pool last (see `_Compiler.alternatives`)
         self.slots: list[_Slot] = []
         self.pools: list[_Pool] = [_Pool()]
+        # constants repeated along the batch: (constant, shape) -> local name
+        self.spread: dict[tuple[str, tuple[int, ...]], str] = {}
         # each temporary's shape, dtype and owner (for writing in place)
         self.meta: dict[str, tuple[tuple[int, ...], np.dtype[Any], str | None, bool]] = {}
 
@@ -314,6 +316,10 @@ class _Code:
 _TEMP = re.compile(r"\bt\d+\b")
 _ASSIGN = re.compile(r"\s*(t\d+) = ")
 _BINARY = re.compile(r"(\s*)(t\d+) = (_add|_sub|_mul|_div|_minimum|_maximum|_land|_lor)\((\w+), (\w+)\)$")
+_UNARY = re.compile(
+    r"(\s*)(t\d+) = (_abs|_neg|_square|_sqrt|_trunc|np\.(?:exp|log|sqrt|cos|sin|tan|arccos|arcsin|arctan|cosh|sinh|tanh))"
+    r"\((t\d+)\)$"
+)
 
 
 # the largest constant (in elements) made for a batch of one out of a smaller one
@@ -371,17 +377,20 @@ def _in_place(lines: list[str], meta: dict[str, tuple[tuple[int, ...], np.dtype[
     out = list(lines)
     for i, line in enumerate(lines):
         m = _BINARY.match(line)
+        if m is None:
+            m = _UNARY.match(line)
         if m is None or m.group(2) not in meta:
             continue
         shape, dtype, _, batched = meta[m.group(2)]
-        for arg in (m.group(4), m.group(5)):
+        args = m.groups()[3:]
+        for arg in args:
             info = meta.get(arg)
             if info is None or not batched:
                 continue
             a_shape, a_dtype, a_owner, a_batched = info
             if a_owner == arg and a_batched and a_shape == shape and a_dtype == dtype and buffer_last.get(arg) == i:
                 # (from here on the buffer is the result's, and only its)
-                out[i] = f"{m.group(1)}{m.group(2)} = {m.group(3)}({m.group(4)}, {m.group(5)}, out={arg})"
+                out[i] = f"{m.group(1)}{m.group(2)} = {m.group(3)}({', '.join(args)}, out={arg})"
                 break
     return out
 
@@ -520,6 +529,39 @@ def _action_in_factory() -> Callable[[Array, tuple[int, ...]], Array]:
     return action_in
 
 
+# the largest constant (in elements per state) repeated along the batch for
+# large batches (see `_Compiler._spread_constant`), and the largest such
+# array (in bytes) made at run time: beyond the caches a second array costs
+# more memory traffic than broadcasting saves
+_SPREAD_CELLS = 4096
+_SPREAD_BYTES = 1 << 20
+
+
+def _spread_factory() -> Callable[[Array, tuple[int, ...]], Array]:
+    cache: dict[tuple[int, tuple[int, ...]], tuple[Array, Array]] = {}
+
+    def spread(k: Array, shape: tuple[int, ...]) -> Array:
+        """The constant `k` repeated to `shape` (its batch axis, last), a
+        contiguous read-only array made once per shape; `k` itself (to be
+        broadcast) where that array would be large."""
+        key = (id(k), shape)
+        hit = cache.get(key)
+        if hit is not None and hit[0] is k:
+            return hit[1]
+        if k.itemsize * int(np.prod(shape)) > _SPREAD_BYTES:
+            out = k
+        else:
+            out = np.ascontiguousarray(np.broadcast_to(k, shape))
+            out.flags.writeable = False
+        if len(cache) > 256:
+            cache.clear()
+        # (the entry holds `k`: its id is not reused while it is cached)
+        cache[key] = (k, out)
+        return out
+
+    return spread
+
+
 # multiply-adds per BLAS call, at most: OpenBLAS runs a smaller product on
 # one thread (its threshold is 4 * 65536); a threaded one stalls badly on a
 # busy machine, and these products are small anyway
@@ -537,6 +579,16 @@ def _matmul_cols(k: Array, f: Array) -> Array:
     step = max(1, _BLAS_BLOCK // per_col)
     for i in range(0, cols, step):
         np.matmul(k, f[..., i : i + step], out=out[..., i : i + step])
+    return out
+
+
+def _gather_sum(x: Array, rows: tuple[Array, ...]) -> Array:
+    """`x[rows[0]] + x[rows[1]] + ...`, added in that order (the same
+    values), into one new array: `take` gathers rows faster than indexing,
+    and adding in place spares a temporary per row."""
+    out = x.take(rows[0], axis=0)
+    for r in rows[1:]:
+        np.add(out, x.take(r, axis=0), out=out)
     return out
 
 
@@ -640,6 +692,7 @@ _BUILTINS: dict[str, Any] = {
     "_u8": np.uint8,
     "_contiguous": np.ascontiguousarray,
     "_pad_zero_row": _pad_zero_row,
+    "_gather_sum": _gather_sum,
     "_eq": np.equal,
     "_ne": np.not_equal,
     "_lt": np.less,
@@ -719,6 +772,7 @@ class _Compiler:
         self.ns: dict[str, Any] = dict(_BUILTINS)
         self.ns["_bidx"] = _bidx_factory()
         self.ns["_action_in"] = _action_in_factory()
+        self.ns["_spread"] = _spread_factory()
         self._consts: dict[Any, _Node] = {}
         self._aux_count = 0
         self._tables: dict[str, str] = {}
@@ -833,6 +887,10 @@ class _Compiler:
                 wide = self._widen_constant(template, args)
                 if wide is not None:
                     args = wide
+            elif self.code.large:
+                spread = self._spread_constant(template, args)
+                if spread is not None:
+                    args = spread
             text = template.format(*(a.code for a in args))
         key = ("op", text)
         hit = self.code.lookup(key)
@@ -936,6 +994,65 @@ class _Compiler:
         out = list(args)
         out[i] = self.const(np.broadcast_to(k.value, x.shape), k.rtype)
         return out
+
+    def _spread_constant(self, template: str, args: list[_Node]) -> list[_Node] | None:
+        """In the code for large batches, for an elementwise `_ufunc({0},
+        {1})` of a constant and a batched value of as many groundings or
+        more: the constant as numpy runs fastest against the value. That
+        is a scalar where every value of the constant is the same (numpy's
+        scalar loops), except for `_minimum` and `_maximum`, whose scalar
+        loops are slow; otherwise the constant repeated along the batch
+        into a contiguous array of the value's shape, made once per batch
+        size (`_spread`): numpy broadcasts a column along a row of the
+        batch two to three times slower than it reads a second array.
+        The same values either way. None where nothing is to change."""
+        m = _UFUNC_CALL.match(template)
+        if m is None:
+            return None
+        ufunc = self.ns.get(m.group(1))
+        if not isinstance(ufunc, np.ufunc) or ufunc.nin != 2 or ufunc.nout != 1 or ufunc.signature is not None:
+            return None
+        i = 0 if args[0].value is not None else 1
+        k, x = args[i], args[1 - i]
+        assert k.value is not None
+        if not x.batched or not x.shape or x.shape[-1] != 1 or x.dtype.kind not in "biuf":
+            return None
+        if k.dtype.kind not in "biuf" or k.value.ndim != len(x.shape) or not k.value.size:
+            return None
+        try:
+            if np.broadcast_shapes(k.shape, x.shape) != x.shape:
+                return None
+        except ValueError:
+            return None
+        cells = int(np.prod(x.shape))
+        flat = k.value.reshape(-1)
+        same = bool((flat == flat[0]).all()) and not np.isnan(flat[0]) if k.dtype.kind == "f" else bool((flat == flat[0]).all())
+        slow_scalar = m.group(1) in ("_minimum", "_maximum")
+        out = list(args)
+        if same and not slow_scalar:
+            if k.shape == (1,) * len(k.shape):
+                return None
+            out[i] = self.const(flat[:1].reshape((1,) * len(k.shape)), k.rtype)
+            return out
+        if cells > _SPREAD_CELLS:
+            return None
+        if k.shape == (1,) * len(k.shape) and not slow_scalar:
+            return None
+        b = self.bounds_of(k)
+        out[i] = _Node(self.spread(k.code, x.shape), x.shape, k.dtype, k.rtype, False, bounds=b)
+        return out
+
+    def spread(self, const: str, shape: tuple[int, ...]) -> str:
+        """The local name of the constant named `const` repeated along the
+        batch to `shape` (batch axis last, 1 here), made at the top of the
+        function being written (see `_spread_constant`)."""
+        code = self.code
+        key = (const, shape)
+        name = code.spread.get(key)
+        if name is None:
+            name = code.spread[key] = f"w{len(code.spread) + 1}"
+            code.inputs[name] = f"_spread({const}, {_last_shape_code(shape[:-1])})"
+        return name
 
     @staticmethod
     def bounds_of(node: _Node) -> tuple[Array, Array] | None:
@@ -1270,21 +1387,67 @@ class _Compiler:
         if op == "<=>":
             return self.op("_eq({0}.astype(_bool), {1}.astype(_bool))", args, "bool")
         out = "real" if "real" in (lt, rt) or op == "/" else "int"
+        if op in ("+", "-", "*", "/"):
+            args = self.narrowed_arithmetic(args)
         if op == "+":
             if lt == rt == "bool":
                 return self.op("{0}.astype(_i64) + {1}", args, "int", bounds=_bounds_add)
-            return self.op("_add({0}, {1})", args, out, bounds=_bounds_add)
+            return self.narrow_result(self.op("_add({0}, {1})", args, out, bounds=_bounds_add), "_add", args)
         if op == "-":
             if lt == "bool":
                 return self.op("{0}.astype(_i64) - {1}", args, out, bounds=_bounds_sub)
-            return self.op("_sub({0}, {1})", args, out, bounds=_bounds_sub)
+            return self.narrow_result(self.op("_sub({0}, {1})", args, out, bounds=_bounds_sub), "_sub", args)
         if op == "*":
             if lt == rt == "bool":
                 return self.op("_land({0}, {1}).astype(_i64)", args, "int")
-            return self.op("_mul({0}, {1})", args, out, bounds=_bounds_mul)
+            return self.narrow_result(self.op("_mul({0}, {1})", args, out, bounds=_bounds_mul), "_mul", args)
         if op == "/":
             return self.op("_div({0}, {1})", args, "real", bounds=_bounds_div)
         raise SimulationError(f"{e.loc}: unknown operator '{op}'")
+
+    @staticmethod
+    def narrowed_arithmetic(args: list[_Node]) -> list[_Node]:
+        """The operands of arithmetic with a float64 value: an integer kept
+        as uint8 too (`narrow`) taken as uint8. numpy converts it to float64
+        either way, exactly (the same values), and reads an eighth of the
+        memory (and skips the int64 array, if nothing else reads it)."""
+        for i in (0, 1):
+            x, other = args[i], args[1 - i]
+            narrow = x.narrow
+            if other.dtype == np.float64 and narrow is not None:
+                if narrow.bounds is None:
+                    narrow.bounds = x.bounds  # (the same values)
+                return [narrow, other] if i == 0 else [other, narrow]
+        return args
+
+    def narrow_result(self, node: _Node, ufunc: str, args: list[_Node]) -> _Node:
+        """`node`, the int64 value of `ufunc` (`_add`, `_sub`, `_mul`) of a
+        count kept as uint8 (`narrow`) and an integer constant, with its
+        uint8 form too where its bounds prove it within [0, 255] (so that
+        uint8 arithmetic makes the same values). (Both are written; the
+        one not read is dropped from the function.)"""
+        if node.dtype != np.int64 or node.narrow is not None or node.value is not None or not self.large:
+            return node
+        b = node.bounds
+        if b is None or b[0].min(initial=0) < 0 or b[1].max(initial=0) > 255:
+            return node
+        narrow: list[_Node] = []
+        for x in args:
+            if x.narrow is not None:
+                narrow.append(x.narrow)
+            elif x.value is not None and x.value.dtype.kind in "iub" and x.value.size:
+                if x.value.min() < 0 or x.value.max() > 255:
+                    return node
+                narrow.append(self.const(x.value.astype(np.uint8), x.rtype))
+            else:
+                return node
+        if all(x.value is not None for x in narrow):
+            return node
+        small = self.op(f"{ufunc}({{0}}, {{1}})", narrow, node.rtype)
+        if small.dtype == np.uint8:
+            small.bounds = b  # (the same values)
+            node.narrow = small
+        return node
 
     def _If(self, e: A.If, scope: Scope, hint: str | None) -> _Node:
         cond = self.numeric(e.cond, scope)
@@ -1708,18 +1871,19 @@ class _Compiler:
                 # them); an exists is a count above 0, so that an exists and
                 # a sum over the same relation share the count
                 flat = self.op("{0}.view(_u8)", [flat], "int", view=True)
-                count = self.op(" + ".join(f"{{0}}[{r}]" for r in rows), [flat], "int")
+                count = self.op(f"_gather_sum({{0}}, {_tuple_code(rows)})", [flat], "int")
                 if op == "exists":
                     out = self.op("{0} > 0", [count], "bool")
                 else:
                     out = self.op("{0}.astype(_i64)", [count], "int")
                     if out.value is None and out.narrow is None:
                         out.narrow = count
+            elif op == "sum":
+                out = self.op(f"_gather_sum({{0}}, {_tuple_code(rows)})", [flat], f.rtype)
             else:
                 out = self.op(f"{{0}}[{rows[0]}]", [flat], f.rtype)
-                add = "_lor" if op == "exists" else "_add"
                 for r in rows[1:]:
-                    out = self.op(f"{add}({{0}}, {{1}}[{r}])", [out, flat], f.rtype)
+                    out = self.op(f"_lor({{0}}, {{1}}[{r}])", [out, flat], f.rtype)
                 if op == "sum" and not real and out.dtype != np.int64:
                     out = self.op("{0}.astype(_i64)", [out], "int")
         else:
@@ -1791,9 +1955,12 @@ class _Compiler:
         args = [self.numeric(a, scope) for a in e.args]
         types = [a.rtype for a in args]
         name = e.name
+        # (no cast of a value that is float64 already: a call less, and a
+        # plain `f(t)` may be written in place, see `_in_place`)
+        as_f64 = "{0}" if args and args[0].dtype == np.float64 else "{0}.astype(_f64, copy=False)"
         if name in _UNARY_FUNCTIONS:
             rising = _bounds_exp if name == "exp" else None
-            return self.op(f"{_UNARY_FUNCTIONS[name]}({{0}}.astype(_f64, copy=False))", args[:1], "real", bounds=rising)
+            return self.op(f"{_UNARY_FUNCTIONS[name]}({as_f64})", args[:1], "real", bounds=rising)
         if name in ("floor", "ceil", "round"):
             return self.op(f"np.{name}({{0}}).astype(_i64)", args[:1], "int")
         if name in ("sgn", "sign"):
@@ -1809,8 +1976,8 @@ class _Compiler:
         if name == "pow":
             if pair[1].value is not None and pair[1].value.size and (pair[1].value == 2).all():
                 # x * x, correctly rounded as pow(x, 2) is: the same values, faster
-                return self.op("_square({0}.astype(_f64, copy=False))", pair[:1], "real")
-            return self.op("_power({0}.astype(_f64, copy=False), {1})", pair, "real")
+                return self.op(f"_square({as_f64})", pair[:1], "real")
+            return self.op(f"_power({as_f64}, {{1}})", pair, "real")
         if name == "log":
             return self.op("_log({0}) / _log({1})", pair, "real")
         if name == "hypot":
@@ -1854,6 +2021,10 @@ class _Compiler:
             # draw, without its slow per-element broadcasting loop; drawn
             # batch last, as laid out here
             z = self.emit_value(f"rng.standard_normal({_last_shape_code(full)})", (*full, 1), np.float64, "real")
+            if self.large:
+                # (two operations, each written in place, with its constant
+                # as numpy takes it fastest: see `_spread_constant`)
+                return self.op("_add({0}, {1})", [m, self.op("_mul({0}, {1})", [sd, z], "real")], "real")
             return self.op("_add({0}, _mul({1}, {2}))", [m, sd, z], "real")
         sampler = _sampler(name, where)
         if sampler is None:
@@ -1886,15 +2057,24 @@ class _Compiler:
         scaled = np.asarray(p.value, dtype=np.float64) * _TWO_32
         limit = np.ceil(scaled)
         valid = bool(((scaled >= 0) & (scaled <= _TWO_32)).all())  # (else it raises before)
+        k: Array
         if valid and limit.max(initial=0) <= 2**32 - 1:
             # u < limit, in uint32
-            text = f"_lt({u}, {self.aux(limit.astype(np.uint32))})"
+            cmp, k = "_lt", limit.astype(np.uint32)
         elif valid and limit.min(initial=1) >= 1:
             # u <= limit - 1, in uint32 (p = 1 somewhere, never 0)
-            text = f"_le({u}, {self.aux((limit - 1).astype(np.uint32))})"
+            cmp, k = "_le", (limit - 1).astype(np.uint32)
         else:
-            text = f"_lt({u}, {self.aux(scaled)})"
-        return self.emit_value(text, (*full, 1), np.bool_, "bool")
+            cmp, k = "_lt", scaled
+        name = self.aux(k)
+        if self.large and k.size and k.ndim == rank:
+            # (as `_spread_constant` does for other operations)
+            flat = k.reshape(-1)
+            if (flat == flat[0]).all():
+                name = self.aux(flat[:1].reshape((1,) * rank))
+            elif int(np.prod(full, dtype=np.int64)) <= _SPREAD_CELLS:
+                name = self.spread(name, (*full, 1))
+        return self.emit_value(f"{cmp}({u}, {name})", (*full, 1), np.bool_, "bool")
 
     def _check(
         self, x: _Node, bad: Callable[[Array], Array], test: str, fail: Callable[[Array], None]
