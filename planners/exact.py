@@ -172,6 +172,13 @@ def check_supported(model: Model) -> None:
         if p.kind == "state-fluent":
             cpf = model.cpfs.get(p.name)
             if cpf is not None:
+                for node in A.walk(cpf.expr):
+                    if isinstance(node, A.PVar) and node.primed:
+                        # its value is another fluent's draw of this step:
+                        # the fluents are no longer independent
+                        raise ExactUnsupported(
+                            f"{p.name}' reads the next state ({node.name}'){_where(node)}"
+                        )
                 _probability(cpf.expr, p.name)
 
 

@@ -152,10 +152,18 @@ def test_ippc_instance_one_against_sampling(
     [
         ("on' = Bernoulli(if (Bernoulli(0.5)) then 0.2 else 0.4);", "probability draws"),
         ("on' = Bernoulli(0.5) == on;", "a draw inside binary '=='"),
+        # the next state of another fluent: the fluents are not independent
+        ("on' = Bernoulli(0.5);\n        off' = ~on';", "off' reads the next state \\(on'\\)"),
     ],
 )
 def test_refuses_what_it_cannot_enumerate(tmp_path: Path, cpf: str, why: str) -> None:
     text = COIN.replace("on' = if (flip) then Bernoulli(0.8) else KronDelta(on);", cpf)
+    if "off'" in cpf:
+        text = text.replace(
+            "on : { state-fluent, bool, default = false };",
+            "on : { state-fluent, bool, default = false };\n"
+            "        off : { state-fluent, bool, default = true };",
+        )
     with pytest.raises(ExactUnsupported, match=why):
         solve(model_of(tmp_path, text, "coin_inst"))
 
