@@ -185,3 +185,53 @@ def test_refuses_an_int_state_fluent(tmp_path: Path) -> None:
 def test_refuses_too_many_states(corpus_dir: Path) -> None:
     with pytest.raises(ExactUnsupported, match="more than 100 reachable states"):
         solve(competition(corpus_dir, "IPPC2011/SysAdmin/MDP"), max_states=100)
+
+
+RANDOM_CONDITION = """
+domain rc {
+    requirements = { concurrent };
+    types { idx : object; };
+    pvariables {
+        a : { state-fluent, bool, default = false };
+        b : { state-fluent, bool, default = false };
+        c : { state-fluent, bool, default = false };
+    };
+    cpfs {
+        a' = if (Bernoulli(0.5)) then Bernoulli(0.3) else KronDelta(b);
+        b' = Bernoulli(0.5) ^ ~Bernoulli(0.2);
+        c' = (exists_{?i : idx} [Bernoulli(0.1)]) => Bernoulli(0.6);
+    };
+    reward = 0;
+}
+instance rc_inst {
+    domain = rc;
+    objects { idx : {i1, i2, i3}; };
+    horizon = 2;
+    discount = 1.0;
+}
+"""
+
+
+def test_composed_probabilities_match_the_simulator_draws(tmp_path: Path) -> None:
+    """A draw in an if's condition, in a conjunction with a negated draw, and
+    in an exists under an implication: the rewritten model's probabilities
+    equal the frequencies of the simulator's own draws."""
+    model = model_of(tmp_path, RANDOM_CONDITION, "rc_inst")
+    sim = Simulator(probability_model(model))
+    n = 200_000
+    state = sim.initial_state(n)
+    state.values["b"][: n // 2] = True  # half the states have b
+    out = sim.step(state, None, np.random.default_rng(5), check=False)
+    nxt = out.next_state.values
+    exists = 1 - 0.9**3
+    expected = {
+        # b false: 0.5 * 0.3; b true: 0.5 * 0.3 + 0.5
+        "a": (np.r_[[0.65] * (n // 2), [0.15] * (n - n // 2)]),
+        "b": np.full(n, 0.5 * 0.8),
+        "c": np.full(n, 1 - exists * (1 - 0.6)),
+    }
+    for name, p in expected.items():
+        assert nxt[name + "__prob-true"] == pytest.approx(p), name
+        sampled = nxt[name]
+        for half in (slice(0, n // 2), slice(n // 2, n)):
+            assert abs(sampled[half].mean() - p[half].mean()) < 0.01, name
