@@ -33,8 +33,8 @@ What it measures
     return lost by that action against the best one, in that state with
     those steps left. A round's regrets add up to an unbiased estimate of
     how far the planner's expected round reward lies below the optimum,
-    with far less noise than the round rewards, whose luck is shared by no
-    one. A second table prints them, with the optimum, the fraction of the
+    with far less noise than the round rewards (the luck of the world's
+    draws does not enter it). A second table prints them, with the optimum, the fraction of the
     way from the floor to PROST that ``optimum - regret`` reaches, and the
     exact expected round reward of noop. ``--no-exact`` skips it.
 
