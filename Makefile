@@ -26,7 +26,8 @@ test-fast: install
 	$(BIN)/python -m pytest -q -m 'not slow'
 
 # The main job: rddl-server on the bundled print-fetching domain, and
-# rddl-client playing a session against it with noop and with random.
+# rddl-client playing a session against it with noop, with random and with
+# exact (the optimal policy, by value iteration over the instance's 480 states).
 demo: install
 	@set -e; out=$$(mktemp); \
 	$(BIN)/rddl-server domains/print_fetch --port 0 --rounds 3 -q > $$out & pid=$$!; \
@@ -35,7 +36,7 @@ demo: install
 	port=$$(sed -n 's/^listening on .*://p' $$out); \
 	test -n "$$port" || { echo "rddl-server did not start"; exit 1; }; \
 	echo "rddl-server listening on 127.0.0.1:$$port"; \
-	for planner in noop random; do \
+	for planner in noop random exact; do \
 		$(BIN)/rddl-client --port $$port --instance print_fetch_inst_1 --planner $$planner --seed 1 -q; \
 	done
 
