@@ -197,12 +197,10 @@ def probability_model(model: Model) -> Model:
         cpf = by_name.get(d.name)
         name = d.name + PROB_SUFFIX
         decls.append(A.PVarDef(name, d.params, "state-fluent", "real", A.Const(0.0, d.loc)))
-        if cpf is None:  # no cpf: the fluent keeps its value
-            params = tuple(f"?p{i}" for i in range(len(d.params)))
-            expr: A.Expr = _indicator(A.PVar(d.name, tuple(A.Var(v) for v in params)), d.loc)
-        else:
-            params, expr = cpf.params, _probability(cpf.expr, d.name)
-        cpfs.append(A.Cpf(name, True, params, expr, d.loc))
+        if cpf is None:  # the checker requires one; a model built by hand may lack it
+            raise ExactUnsupported(f"state fluent {d.name} has no cpf")
+        expr = _probability(cpf.expr, d.name)
+        cpfs.append(A.Cpf(name, True, cpf.params, expr, d.loc))
     domain = dataclasses.replace(dom, pvariables=tuple(decls), cpfs=tuple(cpfs))
     with tempfile.TemporaryDirectory(prefix="ippc-exact-") as tmp:
         dfile, ifile = Path(tmp, "domain.rddl"), Path(tmp, "instance.rddl")
