@@ -147,8 +147,7 @@ class Cell:
 
     @property
     def ci(self) -> float:
-        n = len(self.rewards)
-        return t95(n - 1) * statistics.stdev(self.rewards) / math.sqrt(n) if n > 1 else float("nan")
+        return mean_ci(self.rewards)[1] if self.rewards else float("nan")
 
     def text(self) -> str:
         if self.error is not None or not self.rewards:

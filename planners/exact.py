@@ -255,10 +255,7 @@ class Solution:
 
     def action_index(self, actions: Mapping[str, Array], row: int = 0) -> int:
         """The number of the joint action at `row` of a batch."""
-        key = b"".join(
-            np.ascontiguousarray(actions[n][row : row + 1]).tobytes() for n in self._action_names
-        )
-        return self._action_keys[key]
+        return self._action_keys[_action_key(actions, self._action_names, row)]
 
     def regret(self, steps_left: int, state: State, actions: Mapping[str, Array]) -> float:
         """Expected return lost by taking `actions` in `state` with
@@ -298,6 +295,11 @@ def _state_bits(sim: Simulator, state: State) -> Array:
     names = [p.name for p in sim.state_fluents if not p.name.endswith(PROB_SUFFIX)]
     n = state.batch
     return np.concatenate([state.values[k].reshape(n, -1) for k in names], axis=1).astype(bool)
+
+
+def _action_key(actions: Mapping[str, Array], names: list[str], row: int) -> bytes:
+    """The bytes of the joint action at `row` of a batch (its arrays in `names` order)."""
+    return b"".join(np.ascontiguousarray(actions[n][row : row + 1]).tobytes() for n in names)
 
 
 def _codes(bits: Array) -> Array:
@@ -460,10 +462,7 @@ def solve(
     )
     sol._index = index
     sol._action_names = [p.name for p in world.action_fluents]
-    sol._action_keys = {
-        b"".join(np.ascontiguousarray(acts[n][i : i + 1]).tobytes() for n in sol._action_names): i
-        for i in range(n_act)
-    }
+    sol._action_keys = {_action_key(acts, sol._action_names, i): i for i in range(n_act)}
     sol._starts, sol._succ, sol._prob = starts, succ, prob
     gamma = model.discount
     assert model.horizon is not None

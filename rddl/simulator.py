@@ -962,6 +962,23 @@ class _Compiler:
             return None
         return out
 
+    def _constant_operand(
+        self, template: str, args: list[_Node]
+    ) -> tuple[str, int, _Node, _Node] | None:
+        """For an elementwise `_ufunc({0}, {1})` of two operands, one of them
+        a constant: (the ufunc's name, the constant's position, the constant,
+        the other operand); None for anything else."""
+        m = _UFUNC_CALL.match(template)
+        if m is None:
+            return None
+        ufunc = self.ns.get(m.group(1))
+        if not isinstance(ufunc, np.ufunc) or ufunc.nin != 2 or ufunc.nout != 1 or ufunc.signature is not None:
+            return None
+        i = 0 if args[0].value is not None else 1
+        k, x = args[i], args[1 - i]
+        assert k.value is not None
+        return m.group(1), i, k, x
+
     def _widen_constant(self, template: str, args: list[_Node]) -> list[_Node] | None:
         """In the code for a batch of one, for an elementwise
         `_ufunc({0}, {1})` of a constant and a value of more elements: the
@@ -971,14 +988,10 @@ class _Compiler:
         operation about half a microsecond, two to three times its cost.
         (Not for batches of more than one: the constant would then be
         broadcast along the batch anyway.) None where nothing is to widen."""
-        m = _UFUNC_CALL.match(template)
-        if m is None:
+        found = self._constant_operand(template, args)
+        if found is None:
             return None
-        ufunc = self.ns.get(m.group(1))
-        if not isinstance(ufunc, np.ufunc) or ufunc.nin != 2 or ufunc.nout != 1 or ufunc.signature is not None:
-            return None
-        i = 0 if args[0].value is not None else 1
-        k, x = args[i], args[1 - i]
+        _, i, k, x = found
         assert k.value is not None
         # (the value's shape here is its shape at run time: its batch axis,
         # last, is 1 here and 1 then)
@@ -1006,14 +1019,10 @@ class _Compiler:
         size (`_spread`): numpy broadcasts a column along a row of the
         batch two to three times slower than it reads a second array.
         The same values either way. None where nothing is to change."""
-        m = _UFUNC_CALL.match(template)
-        if m is None:
+        found = self._constant_operand(template, args)
+        if found is None:
             return None
-        ufunc = self.ns.get(m.group(1))
-        if not isinstance(ufunc, np.ufunc) or ufunc.nin != 2 or ufunc.nout != 1 or ufunc.signature is not None:
-            return None
-        i = 0 if args[0].value is not None else 1
-        k, x = args[i], args[1 - i]
+        name, i, k, x = found
         assert k.value is not None
         if not x.batched or not x.shape or x.shape[-1] != 1 or x.dtype.kind not in "biuf":
             return None
@@ -1027,7 +1036,7 @@ class _Compiler:
         cells = int(np.prod(x.shape))
         flat = k.value.reshape(-1)
         same = bool((flat == flat[0]).all()) and not np.isnan(flat[0]) if k.dtype.kind == "f" else bool((flat == flat[0]).all())
-        slow_scalar = m.group(1) in ("_minimum", "_maximum")
+        slow_scalar = name in ("_minimum", "_maximum")
         out = list(args)
         if same and not slow_scalar:
             if k.shape == (1,) * len(k.shape):
