@@ -24,19 +24,23 @@ from .session import Services, Session
 log = logging.getLogger(__name__)
 
 
-def open_services(config: ServerConfig, registry: Registry, port: int) -> Services:
+def open_services(
+    config: ServerConfig, registry: Registry, port: int, *, owner: str | None = None, stamp: str | None = None
+) -> Services:
     """The result store, rddlsim's log file and the transcript factory the
-    configuration asks for."""
+    configuration asks for. `owner` names the store's sessions (see
+    `ResultStore`), `stamp` starts the transcripts' file names (default: now);
+    the worker processes of one server share the stamp."""
     from .records import RddlsimLog, TranscriptWriter
     from .store import ResultStore
 
-    store = ResultStore(config.db) if config.db is not None else None
+    store = ResultStore(config.db, owner=owner) if config.db is not None else None
     rlog = RddlsimLog(RddlsimLog.default_path(config.log_dir, port)) if config.log_dir is not None else None
     transcripts: Callable[[int, dict[str, Any]], Any] | None = None
     if config.transcripts is not None:
         folder = Path(config.transcripts)
         folder.mkdir(parents=True, exist_ok=True)
-        stamp = time.strftime("%Y%m%d-%H%M%S")
+        stamp = stamp or time.strftime("%Y%m%d-%H%M%S")
 
         def transcripts(session_id: int, meta: dict[str, Any]) -> Any:
             stem = f"{stamp}-p{port}-s{session_id}-{meta.get('instance', 'unknown')}"
@@ -84,14 +88,7 @@ async def serve(
                 nursery.start_soon(_watch_signals, nursery.cancel_scope)
 
             async def handler(stream: trio.SocketStream) -> None:
-                try:
-                    host, cport = stream.socket.getpeername()[:2]
-                    peer = f"{host}:{cport}"
-                except OSError:
-                    peer = "?"
-                session = Session(svc, stream, peer)
-                await session.run()
-                svc.last_status = session.status
+                await play_connection(svc, stream)
                 if config.individual_session:
                     nursery.cancel_scope.cancel()
 
@@ -114,6 +111,20 @@ async def serve(
     finally:
         close_services(svc, reason, close=owned)
     return svc
+
+
+async def play_connection(svc: Services, stream: trio.SocketStream, session_id: int | None = None) -> Session:
+    """Play the session of one accepted connection to its end (numbered by
+    `svc` unless `session_id` is given)."""
+    try:
+        host, cport = stream.socket.getpeername()[:2]
+        peer = f"{host}:{cport}"
+    except OSError:
+        peer = "?"
+    session = Session(svc, stream, peer, session_id)
+    await session.run()
+    svc.last_status = session.status
+    return session
 
 
 async def _watch_signals(scope: trio.CancelScope) -> None:

@@ -19,6 +19,7 @@ from .config import (
     ServerConfig,
 )
 from .registry import Registry
+from .workers import WorkerError, default_workers, serve_with_workers, supported
 
 
 @click.command(context_settings={"help_option_names": ["-h", "--help"]})
@@ -35,6 +36,7 @@ from .registry import Registry
 @click.option("--transcripts", type=click.Path(file_okay=False, path_type=Path), help="Record every message of every session here (JSON lines).")
 @click.option("--idle-timeout", type=float, default=None, help="Close a session whose client is silent this many seconds (off by default, as rddlsim).")
 @click.option("--busy-poll-us", type=float, default=DEFAULT_BUSY_POLL_US, show_default=True, help="Microseconds a lone session polls for its client's answer before it sleeps; 0 = off.")
+@click.option("--workers", default="1", show_default=True, metavar="N|auto", help="Processes that play the sessions (one listener hands each connection to the least busy); auto = one per core. Sessions are numbered and seeded as with one.")
 @click.option("-q", "--quiet", is_flag=True, help="Log warnings only.")
 def main(
     rddl_dir: Path,
@@ -50,6 +52,7 @@ def main(
     transcripts: Path | None,
     idle_timeout: float | None,
     busy_poll_us: float,
+    workers: str,
     quiet: bool,
 ) -> None:
     """Serve every RDDL instance under RDDL_DIR to IPPC clients (PROST,
@@ -65,6 +68,7 @@ def main(
         raise click.BadParameter("must be positive", param_hint="--idle-timeout")
     if not 0 <= busy_poll_us <= 10_000:
         raise click.BadParameter("must be between 0 and 10000", param_hint="--busy-poll-us")
+    n_workers = _workers(workers, individual_session)
     try:
         registry = Registry.load(rddl_dir)
     except RDDLError as err:
@@ -90,7 +94,10 @@ def main(
 
     async def run() -> str | None:
         async with trio.open_nursery() as nursery:
-            bound = await nursery.start(_serve_and_stop, config, registry, nursery.cancel_scope)
+            if n_workers > 1:
+                bound = await nursery.start(_serve_workers_and_stop, config, str(rddl_dir), n_workers, nursery.cancel_scope)
+            else:
+                bound = await nursery.start(_serve_and_stop, config, registry, nursery.cancel_scope)
             click.echo(f"listening on {host}:{bound}", err=False)
             sys.stdout.flush()
             click.echo(f"serving {len(registry)} instance(s): {', '.join(registry.names()[:8])}"
@@ -101,6 +108,8 @@ def main(
         status = trio.run(run)
     except KeyboardInterrupt:
         status = None
+    except WorkerError as err:
+        raise click.ClickException(str(err)) from None
     except OSError as err:
         raise click.ClickException(f"cannot listen on {host}:{port}: {err}") from None
     if individual_session and status not in (None, "finished", "timeout"):
@@ -108,6 +117,32 @@ def main(
 
 
 _last_status: list[str | None] = [None]
+
+
+def _workers(value: str, individual_session: bool) -> int:
+    if value.strip().lower() == "auto":
+        n = default_workers()
+    else:
+        try:
+            n = int(value)
+        except ValueError:
+            raise click.BadParameter(f"{value!r} is not a number or 'auto'", param_hint="--workers") from None
+        if n < 1:
+            raise click.BadParameter("must be at least 1", param_hint="--workers")
+    if n > 1 and individual_session:
+        if value.strip().lower() == "auto":
+            return 1
+        raise click.BadParameter("--individual-session plays one session: use one worker", param_hint="--workers")
+    if n > 1 and (why := supported()) is not None:
+        raise click.BadParameter(why, param_hint="--workers")
+    return n
+
+
+async def _serve_workers_and_stop(
+    config: ServerConfig, path: str, n: int, outer: trio.CancelScope, task_status: trio.TaskStatus[int] = trio.TASK_STATUS_IGNORED
+) -> None:
+    await serve_with_workers(config, [path], n, task_status=task_status, handle_signals=True)
+    outer.cancel()
 
 
 async def _serve_and_stop(

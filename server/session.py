@@ -70,6 +70,10 @@ class Services:
     next_id: int = 0
     last_status: str | None = None  # of the last session that ended
     open_sessions: dict[int, Any] = field(default_factory=dict)
+    # In a worker process of `rddl-server --workers N`: a one-item view of the
+    # number of sessions open in the whole server (written by the main
+    # process); None in a server of one process.
+    server_open: Any = None
 
     def new_session_id(self) -> int:
         # rddlsim counts every accepted connection, failed ones included.
@@ -109,6 +113,7 @@ class _Channel:
         self._unwaited = 0  # messages handed out since the last wait in the event loop
         self._busy_poll = services.config.busy_poll_us * 1e-6  # seconds
         self._sessions = services.open_sessions
+        self._server_open = services.server_open
         if isinstance(stream, trio.SocketStream):
             try:
                 self._fd = stream.socket.fileno()
@@ -196,6 +201,8 @@ class _Channel:
         raw = self._raw
         if raw is None or self._busy_poll <= 0.0 or len(self._sessions) > 1:
             return None
+        if self._server_open is not None and self._server_open[0] > 1:
+            return None  # a session in another worker process
         clock = time.perf_counter
         end = clock() + self._busy_poll
         recv = raw.recv
@@ -274,12 +281,13 @@ class _Round:
 class Session:
     """One connection, from session-request to session-end."""
 
-    def __init__(self, services: Services, stream: trio.abc.Stream, peer: str):
+    def __init__(self, services: Services, stream: trio.abc.Stream, peer: str, session_id: int | None = None):
         self.services = services
         self.config = services.config
         self.stream = stream
         self.peer = peer
-        self.id = services.new_session_id()
+        # (a worker process is given the number the main process counted)
+        self.id = services.new_session_id() if session_id is None else session_id
         self.start = time.monotonic()
         self.channel = _Channel(stream, services, self.id, self.start)
         self.client_name = "?"

@@ -154,10 +154,12 @@ class ResultStore:
     how long a write waits for another process that holds the database's write lock.
     """
 
-    def __init__(self, path: str | Path, *, busy_timeout_ms: int = 5000) -> None:
+    def __init__(self, path: str | Path, *, busy_timeout_ms: int = 5000, owner: str | None = None) -> None:
         self.path = str(path)
-        #: Token stored with every session this store starts (see ``interrupt_open``).
-        self.owner = f"{socket.gethostname()}:{os.getpid()}:{uuid.uuid4().hex[:12]}"
+        #: Token stored with every session this store starts (see ``interrupt_open``);
+        #: a caller may name it, as rddl-server does for each of its worker processes so
+        #: that it can close the sessions of a worker that died.
+        self.owner = owner or f"{socket.gethostname()}:{os.getpid()}:{uuid.uuid4().hex[:12]}"
         self._lock = threading.Lock()
         self._closed = False
         if self.path != ":memory:" and not self.path.startswith("file:"):

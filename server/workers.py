@@ -1,0 +1,492 @@
+"""`rddl-server --workers N`: one listener, sessions played in N processes.
+
+A server of one process plays every session on one core. With workers, the
+main process only listens: it accepts each connection, gives it the next
+session number (the k-th accepted connection is session k with seed
+seed + k - 1, exactly as in one process and in rddlsim), and hands the socket
+to the worker process with the fewest open sessions, over a Unix socket
+(SCM_RIGHTS). Each worker runs the same trio session code as a server of one
+process, on its own copy of the instances.
+
+Main process <-> worker messages (one SOCK_SEQPACKET record each):
+
+    main -> worker   b"S" + session number (8 bytes, little endian), with the
+                     connection's descriptor attached
+    worker -> main   b"R"                       ready (instances loaded)
+                     b"E" + session number      that session ended
+
+What the workers share: the listening port's rddlsim log file (every
+document is one O_APPEND write, so documents never interleave), the SQLite
+database (WAL; each worker's sessions carry the worker's own owner token),
+the transcripts' folder and file-name stamp, and one 8-byte counter the main
+process keeps of the sessions open in the whole server (a worker busy-polls
+its lone session's socket only while that count is 1).
+
+A worker that dies is logged with its exit status; the main process marks
+its open sessions interrupted in the database and starts another in its
+place (a worker that dies before it is ready stops the server: it could not
+load the instances). SIGINT/SIGTERM to the main process are passed on to the
+workers, which record their open sessions as interrupted, as one process
+does. A worker whose main process vanishes stops taking sessions and exits
+when its open sessions end.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import logging
+import mmap
+import os
+import signal
+import socket
+import struct
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+import trio
+
+from .config import ServerConfig
+from .registry import Registry
+
+log = logging.getLogger(__name__)
+
+_NUM = struct.Struct("<q")
+_READY = b"R"
+_START = b"S"
+_END = b"E"
+# a worker that has not reported ready after this long is taken for dead
+READY_TIMEOUT = 300.0
+# seconds a worker gets to record its sessions after SIGTERM before SIGKILL
+STOP_GRACE = 10.0
+# a worker that dies this many times within RESPAWN_WINDOW seconds is not restarted
+MAX_RAPID_DEATHS = 5
+RESPAWN_WINDOW = 60.0
+
+
+class WorkerError(RuntimeError):
+    """The worker processes could not be started."""
+
+
+def supported() -> str | None:
+    """Why worker processes cannot run here, or None."""
+    if not hasattr(socket, "send_fds") or not hasattr(socket, "SOCK_SEQPACKET"):
+        return "worker processes need Unix sockets that pass descriptors (Linux)"
+    try:
+        a, b = socket.socketpair(socket.AF_UNIX, socket.SOCK_SEQPACKET)
+    except OSError as err:
+        return f"worker processes need AF_UNIX SOCK_SEQPACKET sockets ({err})"
+    a.close()
+    b.close()
+    return None
+
+
+def default_workers() -> int:
+    """`--workers auto`: one per core the process may run on."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # not Linux
+        return max(1, os.cpu_count() or 1)
+
+
+# ------------------------------------------------------------- the main process
+
+
+class _Worker:
+    """The main process's view of one worker."""
+
+    def __init__(self, index: int, owner: str):
+        self.index = index
+        self.owner = owner
+        self.proc: subprocess.Popen[bytes] | None = None
+        self.ctrl: socket.socket | None = None
+        self.open: set[int] = set()
+        self.ready = trio.Event()
+        self.alive = False
+        self.started_at = 0.0
+        self.deaths: list[float] = []
+
+    def __repr__(self) -> str:
+        pid = self.proc.pid if self.proc is not None else None
+        return f"worker {self.index} (pid {pid})"
+
+
+class WorkerPool:
+    """The worker processes of one server and the count of open sessions."""
+
+    def __init__(self, config: ServerConfig, paths: list[str], n: int, port: int):
+        self.config = config
+        self.paths = paths
+        self.port = port
+        self.stamp = time.strftime("%Y%m%d-%H%M%S")
+        base = f"{socket.gethostname()}:{os.getpid()}:{os.urandom(6).hex()}"
+        self.workers = [_Worker(i, f"{base}:w{i}") for i in range(n)]
+        self.next_id = 0
+        self.stopping = False
+        # the shared count of open sessions: an unlinked temporary file, mapped
+        self._count_file = tempfile.TemporaryFile(prefix="ippc-sessions-")
+        self._count_file.write(b"\0" * _NUM.size)
+        self._count_file.flush()
+        self._map = mmap.mmap(self._count_file.fileno(), _NUM.size)
+
+    # -- the shared count
+
+    def _publish(self) -> None:
+        _NUM.pack_into(self._map, 0, sum(len(w.open) for w in self.workers))
+
+    @property
+    def open_sessions(self) -> int:
+        return int(_NUM.unpack_from(self._map, 0)[0])
+
+    # -- processes
+
+    def _spawn(self, w: _Worker) -> None:
+        parent, child = socket.socketpair(socket.AF_UNIX, socket.SOCK_SEQPACKET)
+        spec = {
+            "index": w.index,
+            "owner": w.owner,
+            "ctrl": child.fileno(),
+            "count": self._count_file.fileno(),
+            "port": self.port,
+            "stamp": self.stamp,
+            "paths": self.paths,
+            "config": _config_to_json(self.config),
+            "log_level": logging.getLogger().getEffectiveLevel(),
+        }
+        try:
+            w.proc = subprocess.Popen(
+                [sys.executable, "-c", "from ippc.server.workers import worker_main; worker_main()", json.dumps(spec)],
+                pass_fds=(child.fileno(), self._count_file.fileno()),
+                stdin=subprocess.DEVNULL,
+            )
+        except OSError as err:
+            parent.close()
+            raise WorkerError(f"cannot start worker {w.index}: {err}") from None
+        finally:
+            child.close()
+        parent.setblocking(False)
+        w.ctrl = parent
+        w.ready = trio.Event()
+        w.alive = True
+        w.started_at = time.monotonic()
+
+    async def run(self, *, task_status: trio.TaskStatus[None] = trio.TASK_STATUS_IGNORED) -> None:
+        """Start the workers, report when all are ready, then watch them
+        (restarting the ones that die) until cancelled; on the way out, stop
+        them all."""
+        try:
+            async with trio.open_nursery() as nursery:
+                for w in self.workers:
+                    self._spawn(w)
+                    nursery.start_soon(self._watch, w)
+                with trio.move_on_after(READY_TIMEOUT) as scope:
+                    for w in self.workers:
+                        await w.ready.wait()
+                if scope.cancelled_caught:
+                    raise WorkerError(f"the workers were not ready after {READY_TIMEOUT:g} s")
+                task_status.started()
+        finally:
+            with trio.CancelScope(shield=True):
+                await self._stop_all()
+
+    async def _watch(self, w: _Worker) -> None:
+        """Read a worker's messages; when it dies, close its sessions and
+        start another."""
+        while True:
+            await self._read(w)
+            code = await self._reap(w)
+            lost = sorted(w.open)
+            w.open.clear()
+            self._publish()
+            if self.stopping:
+                return
+            if not w.ready.is_set() and not w.deaths:
+                raise WorkerError(f"worker {w.index} exited ({_status(code)}) before it was ready; see its log above")
+            log.error("%r exited (%s) with %d open session(s) %s", w, _status(code), len(lost), lost)
+            self._interrupt(w, f"worker process died ({_status(code)})")
+            now = time.monotonic()
+            w.deaths = [t for t in w.deaths if now - t < RESPAWN_WINDOW] + [now]
+            if len(w.deaths) >= MAX_RAPID_DEATHS:
+                log.error("worker %d died %d times in %g s: not restarted", w.index, len(w.deaths), RESPAWN_WINDOW)
+                return
+            await trio.sleep(0.2 * len(w.deaths))
+            self._spawn(w)
+            log.warning("worker %d restarted (pid %d)", w.index, w.proc.pid if w.proc else -1)
+
+    async def _read(self, w: _Worker) -> None:
+        ctrl = w.ctrl
+        assert ctrl is not None
+        while True:
+            try:
+                msg = ctrl.recv(64)
+            except (BlockingIOError, InterruptedError):
+                await trio.lowlevel.wait_readable(ctrl)
+                continue
+            except OSError:
+                msg = b""
+            if not msg:
+                w.alive = False
+                ctrl.close()
+                w.ctrl = None
+                return
+            kind = msg[:1]
+            if kind == _READY:
+                w.ready.set()
+            elif kind == _END and len(msg) == 1 + _NUM.size:
+                w.open.discard(_NUM.unpack_from(msg, 1)[0])
+                self._publish()
+            else:
+                log.error("%r sent an unknown message %r", w, msg[:20])
+
+    async def _reap(self, w: _Worker) -> int | None:
+        """The exit status of a worker whose control socket closed."""
+        proc = w.proc
+        if proc is None:
+            return None
+        with trio.move_on_after(STOP_GRACE):
+            while proc.poll() is None:
+                await trio.sleep(0.05)
+        if proc.poll() is None:
+            proc.kill()
+            with trio.move_on_after(2.0):
+                while proc.poll() is None:
+                    await trio.sleep(0.05)
+        return proc.poll()
+
+    def _interrupt(self, w: _Worker, reason: str) -> None:
+        if self.config.db is None:
+            return
+        from .store import ResultStore
+
+        try:
+            with ResultStore(self.config.db, owner=w.owner) as store:
+                store.interrupt_open(reason, time.time())
+        except Exception as err:  # the database is the workers' too: never fatal here
+            log.error("could not mark worker %d's sessions interrupted: %s", w.index, err)
+
+    async def _stop_all(self) -> None:
+        self.stopping = True
+        live = [w for w in self.workers if w.proc is not None and w.proc.poll() is None]
+        for w in live:
+            try:
+                w.proc.send_signal(signal.SIGTERM)  # type: ignore[union-attr]
+            except OSError:
+                pass
+        deadline = time.monotonic() + STOP_GRACE
+        for w in live:
+            proc = w.proc
+            assert proc is not None
+            while proc.poll() is None and time.monotonic() < deadline:
+                await trio.sleep(0.05)
+            if proc.poll() is None:
+                log.error("%r did not stop within %g s: killed", w, STOP_GRACE)
+                proc.kill()
+                proc.wait()
+                self._interrupt(w, "server stopped (worker killed)")
+        for w in self.workers:
+            if w.ctrl is not None:
+                w.ctrl.close()
+                w.ctrl = None
+        self._map.close()
+        self._count_file.close()
+
+    # -- handing out connections
+
+    async def hand_over(self, sock: trio.socket.SocketType) -> None:
+        """Number an accepted connection and pass it to the least busy
+        worker (the connection is closed here either way)."""
+        self.next_id += 1
+        sid = self.next_id
+        try:
+            for w in sorted((w for w in self.workers if w.alive and w.ready.is_set()), key=lambda w: (len(w.open), w.index)):
+                if await self._send(w, sid, sock.fileno()):
+                    w.open.add(sid)
+                    self._publish()
+                    return
+            log.error("session %d: no worker process to play it; connection closed", sid)
+        finally:
+            sock.close()
+
+    async def _send(self, w: _Worker, sid: int, fd: int) -> bool:
+        ctrl = w.ctrl
+        while ctrl is not None:
+            try:
+                socket.send_fds(ctrl, [_START + _NUM.pack(sid)], [fd])
+                return True
+            except (BlockingIOError, InterruptedError):
+                await trio.lowlevel.wait_writable(ctrl)
+            except OSError as err:
+                log.warning("%r cannot take session %d: %s", w, sid, err)
+                return False
+            ctrl = w.ctrl
+        return False
+
+
+async def serve_with_workers(
+    config: ServerConfig,
+    paths: list[str],
+    n: int,
+    *,
+    task_status: trio.TaskStatus[int] = trio.TASK_STATUS_IGNORED,
+    handle_signals: bool = False,
+    pools: list[WorkerPool] | None = None,
+) -> None:
+    """Listen on the configured address and play every session in one of `n`
+    worker processes. Reports the bound port once every worker is ready;
+    runs until cancelled (or a signal, with `handle_signals`). The pool is
+    appended to `pools` if given (tests look into it)."""
+    listeners = await trio.open_tcp_listeners(config.port, host=config.host)
+    port = listeners[0].socket.getsockname()[1]
+    pool = WorkerPool(config, paths, n, port)
+    if pools is not None:
+        pools.append(pool)
+    try:
+        async with trio.open_nursery() as nursery:
+            if handle_signals:
+                from .app import _watch_signals
+
+                nursery.start_soon(_watch_signals, nursery.cancel_scope)
+            await nursery.start(pool.run)
+            for listener in listeners:
+                nursery.start_soon(_accept, listener, pool)
+            task_status.started(port)
+    finally:
+        for listener in listeners:
+            listener.socket.close()
+
+
+async def _accept(listener: trio.SocketListener, pool: WorkerPool) -> None:
+    sock = listener.socket
+    while True:
+        try:
+            conn, _ = await sock.accept()
+        except OSError as err:  # e.g. too many open files: wait, go on
+            log.error("accept failed: %s", err)
+            await trio.sleep(0.1)
+            continue
+        await pool.hand_over(conn)
+
+
+# ------------------------------------------------------------- a worker process
+
+
+def worker_main() -> None:
+    """The entry point of a worker process (started by `WorkerPool`)."""
+    spec = json.loads(sys.argv[1])
+    logging.basicConfig(
+        level=spec["log_level"],
+        format=f"%(asctime)s %(levelname)s %(name)s[w{spec['index']}]: %(message)s",
+        stream=sys.stderr,
+    )
+    ctrl = socket.socket(fileno=spec["ctrl"])
+    count = mmap.mmap(spec["count"], _NUM.size, access=mmap.ACCESS_READ)
+    os.close(spec["count"])
+    try:
+        registry = Registry.load(*spec["paths"])
+    except Exception as err:
+        log.error("cannot load the instances: %s", err)
+        sys.exit(2)
+    config = _config_from_json(spec["config"])
+    try:
+        trio.run(_worker, config, registry, ctrl, count, spec)
+    except KeyboardInterrupt:
+        pass
+
+
+async def _worker(
+    config: ServerConfig, registry: Registry, ctrl: socket.socket, count: mmap.mmap, spec: dict[str, Any]
+) -> None:
+    from .app import close_services, open_services, play_connection
+
+    svc = open_services(config, registry, spec["port"], owner=spec["owner"], stamp=spec["stamp"])
+    svc.server_open = memoryview(count).cast("q")
+    ctrl.setblocking(False)
+
+    async def play(sid: int, sock: socket.socket) -> None:
+        try:
+            stream = trio.SocketStream(trio.socket.from_stdlib_socket(sock))
+            await play_connection(svc, stream, sid)
+        except Exception:  # a fault of ours: this session only, the others go on
+            log.exception("session %d ended by an internal error", sid)
+        finally:
+            _tell(ctrl, _END + _NUM.pack(sid))
+
+    async def take_sessions(sessions: trio.Nursery) -> None:
+        ctrl.send(_READY)
+        while True:
+            try:
+                msg, fds, _, _ = socket.recv_fds(ctrl, 64, 4)
+            except (BlockingIOError, InterruptedError):
+                await trio.lowlevel.wait_readable(ctrl)
+                continue
+            except OSError:
+                msg, fds = b"", []
+            socks = [socket.socket(fileno=fd) for fd in fds]
+            if not msg:
+                log.warning("the main process is gone: no new sessions; exiting when the open ones end")
+                return
+            if msg[:1] != _START or len(msg) != 1 + _NUM.size or len(socks) != 1:
+                log.error("unexpected message from the main process %r", msg[:20])
+                for s in socks:
+                    s.close()
+                continue
+            sessions.start_soon(play, _NUM.unpack_from(msg, 1)[0], socks[0])
+
+    async def on_signal(signals: Any, scope: trio.CancelScope) -> None:
+        # every signal until the end: a second one (the terminal's SIGINT and
+        # the main process's SIGTERM both come) must not cut the cleanup short
+        async for signum in signals:
+            log.info("signal %s: stopping", signal.Signals(signum).name)
+            scope.cancel()
+
+    with trio.open_signal_receiver(signal.SIGINT, signal.SIGTERM) as signals:
+        try:
+            async with trio.open_nursery() as top:
+                top.start_soon(on_signal, signals, top.cancel_scope)
+                async with trio.open_nursery() as sessions:
+                    sessions.start_soon(take_sessions, sessions)
+                top.cancel_scope.cancel()  # no more sessions to come or to end
+        finally:
+            svc.server_open = None
+            close_services(svc, "server stopped")
+            ctrl.close()
+
+
+def _tell(ctrl: socket.socket, msg: bytes) -> None:
+    """A notice to the main process; lost if it is gone or not reading
+    (it then only miscounts open sessions)."""
+    try:
+        ctrl.send(msg)
+    except OSError:
+        pass
+
+
+# ------------------------------------------------------------- helpers
+
+
+def _config_to_json(config: ServerConfig) -> dict[str, Any]:
+    return {k: (str(v) if isinstance(v, Path) else v) for k, v in dataclasses.asdict(config).items()}
+
+
+def _config_from_json(data: dict[str, Any]) -> ServerConfig:
+    paths = {"log_dir", "db", "transcripts"}
+    fields: dict[str, Any] = {k: (Path(v) if k in paths and v is not None else v) for k, v in data.items()}
+    return ServerConfig(**fields)
+
+
+def _status(code: int | None) -> str:
+    if code is None:
+        return "status unknown"
+    if code < 0:
+        try:
+            return f"signal {signal.Signals(-code).name}"
+        except ValueError:
+            return f"signal {-code}"
+    return f"exit code {code}"
+
+
+__all__ = ["WorkerError", "WorkerPool", "default_workers", "serve_with_workers", "supported", "worker_main"]

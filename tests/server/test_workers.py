@@ -1,0 +1,247 @@
+"""rddl-server --workers N: one listener, sessions played in worker processes."""
+
+from __future__ import annotations
+
+import os
+import signal
+import sqlite3
+import subprocess
+import time
+from collections.abc import Callable
+from functools import partial
+from pathlib import Path
+from typing import Any
+
+import pytest
+import trio
+from ippc.server.config import ServerConfig
+from ippc.server.records import read_transcript
+from ippc.server.workers import WorkerPool, serve_with_workers, supported
+
+from .harness import (
+    NOOP,
+    RDDL,
+    ROUND_REQUEST,
+    RawClient,
+    noop_session,
+    root_of,
+    running_server,
+    session_request,
+)
+from .test_cli import SERVER, start
+
+pytestmark = pytest.mark.skipif(supported() is not None, reason=str(supported()))
+
+
+async def _until(cond: Callable[[], bool], what: str, timeout: float = 20.0) -> None:
+    with trio.fail_after(timeout):
+        while not cond():
+            await trio.sleep(0.02)
+    assert cond(), what
+
+
+async def _held(port: int, client: str) -> RawClient:
+    """A session stopped at its first turn (the client has not answered)."""
+    c = await RawClient.connect(port)
+    await c.send(session_request(client=client))
+    assert root_of(await c.recv()) == "session-init"
+    await c.send(ROUND_REQUEST)
+    assert root_of(await c.recv()) == "round-init"
+    assert root_of(await c.recv()) == "turn"
+    return c
+
+
+async def _finish(c: RawClient, rounds_left: int = 0) -> int:
+    """Answer noops to the end of the session (`rounds_left` rounds after
+    this one); the turns answered."""
+    turns = 0
+    await c.send(NOOP)
+    while True:
+        msg = await c.recv()
+        assert msg is not None
+        kind = root_of(msg)
+        if kind == "turn":
+            turns += 1
+            await c.send(NOOP)
+        elif kind == "round-end" and rounds_left:
+            rounds_left -= 1
+            await c.send(ROUND_REQUEST)
+        elif kind == "round-end":
+            continue
+        elif kind == "session-end":
+            await c.expect_eof()
+            await c.close()
+            return turns
+
+
+async def _with_workers(config: ServerConfig, n: int, body: Callable[[int, WorkerPool], Any]) -> None:
+    pools: list[WorkerPool] = []
+    async with trio.open_nursery() as nursery:
+        port = await nursery.start(partial(serve_with_workers, config, [str(RDDL)], n, pools=pools))
+        await body(port, pools[0])
+        nursery.cancel_scope.cancel()
+
+
+def test_sessions_are_numbered_seeded_and_recorded_as_in_one_process(tmp_path: Path) -> None:
+    """Six concurrent sessions on two workers: the session numbers 1-6, and
+    for each number the very rewards and states a server of one process
+    plays; every step in the database, every document in rddlsim's log,
+    one transcript per session."""
+    db, logs, tr = tmp_path / "r.db", tmp_path / "logs", tmp_path / "tr"
+    config = ServerConfig(port=0, rounds=2, db=db, log_dir=logs, transcripts=tr)
+    spread: list[list[int]] = []
+
+    async def six(port: int) -> dict[int, dict[str, Any]]:
+        out: dict[int, dict[str, Any]] = {}
+
+        async def one(i: int) -> None:
+            r = await noop_session(port, client=f"c{i}")
+            out[r["session_id"]] = r
+
+        async with trio.open_nursery() as nursery:
+            for i in range(6):
+                nursery.start_soon(one, i)
+        return out
+
+    async def main() -> tuple[dict[int, Any], dict[int, Any]]:
+        got: dict[int, Any] = {}
+
+        async def body(port: int, pool: WorkerPool) -> None:
+            got.update(await six(port))
+            await _until(lambda: pool.open_sessions == 0, "every end reported")
+            spread.extend(sorted(w.open) for w in pool.workers)
+
+        await _with_workers(config, 2, body)
+        async with running_server(ServerConfig(port=0, rounds=2)) as (port, _):
+            alone = await six(port)
+        return got, alone
+
+    got, alone = trio.run(main)
+    assert sorted(got) == list(range(1, 7))
+    for sid in got:
+        assert got[sid]["rounds"] == alone[sid]["rounds"], sid
+        assert got[sid]["states"] == alone[sid]["states"], sid
+    assert spread == [[], []]
+    con = sqlite3.connect(db)
+    rows = con.execute("select server_session_id, seed, status, owner from sessions order by server_session_id").fetchall()
+    assert [(r[0], r[1], r[2]) for r in rows] == [(k, k - 1, "finished") for k in range(1, 7)]
+    assert con.execute("select count(*) from steps").fetchone()[0] == sum(len(r["states"]) for r in got.values()) == 6 * 2 * 5
+    text = (logs / f"logs-{_port_of(rows, logs)}.log").read_text()
+    assert text.count("<client-info>") == 6
+    assert text.count("<round-end>") == 12
+    assert text.count("<session-end>") == 6
+    lines = text.splitlines()
+    assert all(line.startswith("<?xml") or line.startswith("<") and line.endswith(">") for line in lines)
+    files = sorted(tr.iterdir())
+    assert len(files) == 6
+    for f in files:
+        meta, records = read_transcript(f)
+        assert meta["session_id"] in got
+        assert sum(r.get("dir") == "s2c" and "eof" not in r.values() for r in records) == 1 + 2 * (1 + 5 + 1) + 1, records[-2:]
+
+
+def _port_of(rows: list[tuple[Any, ...]], logs: Path) -> str:
+    (log,) = logs.iterdir()
+    return log.name.removeprefix("logs-").removesuffix(".log")
+
+
+def test_least_busy_worker_and_the_shared_count() -> None:
+    """Two held sessions go to two workers; the count the workers read (for
+    the busy poll) follows the sessions open in the whole server."""
+    config = ServerConfig(port=0, rounds=1)
+
+    async def body(port: int, pool: WorkerPool) -> None:
+        a = await _held(port, "a")
+        await _until(lambda: pool.open_sessions == 1, "one open")
+        b = await _held(port, "b")
+        assert pool.open_sessions == 2
+        assert [sorted(w.open) for w in pool.workers] == [[1], [2]]
+        assert await _finish(a) == 4
+        await _until(lambda: pool.open_sessions == 1, "a's end counted")
+        assert await _finish(b) == 4
+        await _until(lambda: pool.open_sessions == 0, "b's end counted")
+
+    trio.run(_with_workers, config, 2, body)
+
+
+def test_a_dead_worker_costs_only_its_sessions(tmp_path: Path) -> None:
+    """kill -9 of the worker playing session 1: that session is recorded
+    interrupted and its client sees the connection close; session 2 in the
+    other worker plays to its end; a new worker takes later sessions."""
+    db = tmp_path / "r.db"
+    config = ServerConfig(port=0, rounds=1, db=db)
+
+    async def body(port: int, pool: WorkerPool) -> None:
+        a = await _held(port, "a")
+        b = await _held(port, "b")
+        (victim,) = [w for w in pool.workers if 1 in w.open]
+        old_pid = victim.proc.pid  # type: ignore[union-attr]
+        os.kill(old_pid, signal.SIGKILL)
+        await a.expect_eof()
+        await a.close()
+        assert await _finish(b) == 4
+        await _until(lambda: victim.alive and victim.ready.is_set() and victim.proc.pid != old_pid, "restarted")  # type: ignore[union-attr]
+        assert pool.open_sessions == 0
+        again = [await noop_session(port, client=f"later{i}") for i in range(2)]
+        assert [r["session_id"] for r in again] == [3, 4]
+
+    trio.run(_with_workers, config, 2, body)
+    con = sqlite3.connect(db)
+    rows = dict(con.execute("select server_session_id, status || ': ' || coalesce(reason, '') from sessions").fetchall())
+    assert rows[1].startswith("interrupted: worker process died (signal SIGKILL)")
+    assert rows[2] == rows[3] == rows[4] == "finished: "
+
+
+def _children(pid: int) -> list[int]:
+    out = []
+    for task in Path(f"/proc/{pid}/task").iterdir():
+        out += [int(x) for x in (task / "children").read_text().split()]
+    return out
+
+
+@pytest.mark.skipif(not Path("/proc/self/task").exists(), reason="needs /proc")
+def test_cli_sigterm_interrupts_sessions_and_stops_the_workers(tmp_path: Path) -> None:
+    db = tmp_path / "r.db"
+    proc, port = start("--rounds", "30", "--db", str(db), "--workers", "2", "-q")
+    try:
+        workers = _children(proc.pid)
+        assert len(workers) == 2
+
+        async def victims() -> None:
+            a = await _held(port, "a")
+            b = await _held(port, "b")
+            proc.send_signal(signal.SIGTERM)
+            await a.expect_eof()
+            await b.expect_eof()
+
+        trio.run(victims)
+        assert proc.wait(30) == 0
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    deadline = time.monotonic() + 10
+    while any(Path(f"/proc/{w}").exists() and "Z" not in _state(w) for w in workers) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert not [w for w in workers if Path(f"/proc/{w}").exists() and "Z" not in _state(w)]
+    con = sqlite3.connect(db)
+    assert con.execute("select status, count(distinct owner) from sessions").fetchall() == [("interrupted", 2)]
+
+
+def _state(pid: int) -> str:
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except OSError:
+        return "Z"
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--workers", "0"], "must be at least 1"),
+        (["--workers", "many"], "is not a number or 'auto'"),
+        (["--workers", "2", "--individual-session"], "--individual-session plays one session"),
+    ],
+)
+def test_workers_option_errors(args: list[str], message: str) -> None:
+    r = subprocess.run([*SERVER, str(RDDL), *args], capture_output=True, text=True, timeout=60)
+    assert r.returncode == 2 and message in r.stderr and "--workers" in r.stderr
