@@ -266,10 +266,28 @@ async def echo_server(canned_file: str) -> None:
 # --------------------------------------------------- processes
 
 
+def _tree(pid: int) -> list[int]:
+    """A process and its descendants (worker processes of rddl-server)."""
+    out = [pid]
+    for p in out:
+        try:
+            for task in Path(f"/proc/{p}/task").iterdir():
+                out += [int(x) for x in (task / "children").read_text().split()]
+        except OSError:
+            pass
+    return out
+
+
 def cpu_seconds(pid: int) -> float:
-    """User + system CPU time of a process so far."""
-    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+    """User + system CPU time so far of a process and its descendants."""
+    total = 0
+    for p in _tree(pid):
+        try:
+            fields = Path(f"/proc/{p}/stat").read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        total += int(fields[11]) + int(fields[12])
+    return total / os.sysconf("SC_CLK_TCK")
 
 
 def rss_kb(pid: int) -> int:
@@ -292,9 +310,9 @@ def memory_per_session(port: int, pid: int, n: int) -> float:
     return (during - base) / n
 
 
-def start_ours(rounds: int, db: Path | None) -> tuple[subprocess.Popen[str], int]:
+def start_ours(rounds: int, db: Path | None, workers: int = 1) -> tuple[subprocess.Popen[str], int]:
     cmd = [sys.executable, "-c", "from ippc.server.cli import main; main()", str(BENCH_RDDL),
-           "--port", "0", "--rounds", str(rounds), "--timeout", "0", "-q"]
+           "--port", "0", "--rounds", str(rounds), "--timeout", "0", "-q", "--workers", str(workers)]
     if db is not None:
         cmd += ["--db", str(db)]
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True)
@@ -353,11 +371,21 @@ def stop(proc: subprocess.Popen[str] | subprocess.Popen[bytes] | None) -> None:
             proc.wait(10)
 
 
+def _row(server: str, n: int, runs: list[tuple[float, float, float, int]]) -> dict[str, object]:
+    rates = [r for r, _, _, _ in runs]
+    return {"server": server, "clients": n, "turns": runs[-1][3], "runs": len(runs),
+            "turns_per_s": statistics.median(rates), "min": min(rates), "max": max(rates),
+            "server_cpu_us_per_turn": statistics.median(c for _, c, _, _ in runs),
+            "client_cpu_us_per_turn": statistics.median(c for _, _, c, _ in runs)}
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--clients", type=int, nargs="+", default=[1, 10, 50])
     ap.add_argument("--rounds", type=int, default=30)
-    ap.add_argument("--repeat", type=int, default=5, help="one-client sessions per server (median)")
+    ap.add_argument("--repeat", type=int, default=5, help="runs of every measurement (median)")
+    ap.add_argument("--workers", default="auto",
+                    help="--workers of the second rddl-server measured (auto: one per core; 1: measure one server only)")
     ap.add_argument("--memory-sessions", type=int, default=50)
     ap.add_argument("--db", action="store_true", help="run our server with --db (SQLite in a temporary folder)")
     ap.add_argument("--rddlsim-classpath", default=os.environ.get("RDDLSIM_CP"))
@@ -371,68 +399,72 @@ def main() -> None:
         return
     if not BENCH_RDDL.is_dir():
         raise SystemExit(f"missing {BENCH_RDDL} (the shared folder beside the checkout)")
+    if args.workers == "auto":
+        from ippc.server.workers import default_workers
+
+        workers = default_workers()
+    else:
+        workers = int(args.workers)
 
     rows: list[dict[str, object]] = []
     with tempfile.TemporaryDirectory(prefix="ippc-bench-") as tmp:
         folder = Path(tmp)
         proc, port = start_ours(args.rounds, folder / "results.sqlite" if args.db else None)
-        eproc = jproc = None
+        procs: list[subprocess.Popen[str] | subprocess.Popen[bytes]] = [proc]
         try:
             canned: dict[str, bytes] = {}
             play(port, 1, canned)  # compiles the instance, keeps one message of each kind
             # memory first, before the load runs leave freed memory for reuse
             mem = memory_per_session(port, proc.pid, args.memory_sessions)
-            servers: dict[str, tuple[int, int | None]] = {"ippc": (port, proc.pid)}
+            servers: dict[str, tuple[int, int]] = {"ippc": (port, proc.pid)}
+            ours = ["ippc"]
+            if workers > 1:
+                wproc, wport = start_ours(args.rounds, folder / "results-w.sqlite" if args.db else None, workers)
+                procs.append(wproc)
+                key = f"ippc-w{workers}"
+                servers[key] = (wport, wproc.pid)
+                ours.append(key)
             eproc, eport = start_canned(canned, folder)
+            procs.append(eproc)
             servers["canned"] = (eport, eproc.pid)
             if args.rddlsim_classpath:
                 rport = free_port()
                 jproc = start_rddlsim(args.rddlsim_classpath, args.rounds, rport, folder)
+                procs.append(jproc)
                 servers["rddlsim"] = (rport, jproc.pid)
             for p, _ in servers.values():
                 if p != port:
-                    play(p, 1)  # warm-up (JIT for rddlsim)
-            # one client: the servers take turns, median of `repeat`
-            one: dict[str, list[tuple[float, float]]] = {k: [] for k in servers}
+                    play(p, 1)  # warm-up (JIT for rddlsim, compiling in the workers)
+            # every measurement once per pass, `repeat` passes: a load change
+            # on a shared machine hits all of them alike
+            runs: dict[tuple[str, int], list[tuple[float, float, float, int]]] = {}
             for _ in range(args.repeat):
-                for key, (p, pid) in servers.items():
-                    cpu0 = cpu_seconds(pid) if pid else 0.0
-                    turns, secs = play(p, 1)
-                    cpu = cpu_seconds(pid) - cpu0 if pid else 0.0
-                    one[key].append((turns / secs, 1e6 * cpu / turns, 1e6 * LAST_CLIENT_CPU[0] / turns))
-            for key, runs in one.items():
-                rates = [r for r, _, _ in runs]
-                rows.append({"server": key, "clients": 1, "turns": turns, "runs": len(runs),
-                             "turns_per_s": statistics.median(rates), "min": min(rates), "max": max(rates),
-                             "server_cpu_us_per_turn": statistics.median(c for _, c, _ in runs),
-                             "client_cpu_us_per_turn": statistics.median(c for _, _, c in runs)})
-            for n in args.clients:
-                if n == 1:
-                    continue
-                runs = []
-                for _ in range(min(args.repeat, 3)):
-                    cpu0 = cpu_seconds(proc.pid)
-                    turns, secs = play(port, n)
-                    runs.append((turns / secs, 1e6 * (cpu_seconds(proc.pid) - cpu0) / turns,
-                                 1e6 * LAST_CLIENT_CPU[0] / turns))
-                rates = [r for r, _, _ in runs]
-                rows.append({"server": "ippc", "clients": n, "turns": turns, "runs": len(runs),
-                             "turns_per_s": statistics.median(rates), "min": min(rates), "max": max(rates),
-                             "server_cpu_us_per_turn": statistics.median(c for _, c, _ in runs),
-                             "client_cpu_us_per_turn": statistics.median(c for _, _, c in runs)})
+                for n in sorted(set(args.clients) | {1}):
+                    for key in servers if n == 1 else ours:
+                        p, pid = servers[key]
+                        cpu0 = cpu_seconds(pid)
+                        turns, secs = play(p, n)
+                        cpu = cpu_seconds(pid) - cpu0
+                        runs.setdefault((key, n), []).append(
+                            (turns / secs, 1e6 * cpu / turns, 1e6 * LAST_CLIENT_CPU[0] / turns, turns))
+            for key in servers:
+                rows.append(_row(key, 1, runs[key, 1]))
+            for key in ours:
+                rows += [_row(key, n, runs[key, n]) for n in sorted(set(args.clients)) if n > 1]
         finally:
-            for pr in (proc, eproc, jproc):
+            for pr in procs:
                 stop(pr)
 
     ref = next((r["turns_per_s"] for r in rows if r["server"] == "rddlsim"), None)
     if args.json:
-        print(json.dumps({"rows": rows, "memory_kb_per_session": mem, "rddlsim_same_run": ref, "db": args.db}, indent=2))
+        print(json.dumps({"rows": rows, "memory_kb_per_session": mem, "rddlsim_same_run": ref, "db": args.db,
+                          "workers": workers, "runs": {f"{k}/{n}": v for (k, n), v in runs.items()}}, indent=2))
         return
     print(f"workload: {INSTANCE}, {args.rounds} rounds x horizon 40 per session, noop raw client, loopback"
           + (", ippc with --db" if args.db else ""))
-    print(f"one client: median of {args.repeat} sessions per server, servers taking turns; more clients: median of "
-          f"{min(args.repeat, 3)} runs (min-max in brackets)")
-    print("canned = a trio server that answers with fixed bytes (no XML, no simulation)")
+    print(f"median of {args.repeat} runs of each line, all lines taking turns in every pass (min-max in brackets)")
+    print("ippc = rddl-server (one process)" + (f"; ippc-w{workers} = rddl-server --workers {workers}" if workers > 1 else "")
+          + "; canned = a trio server that answers with fixed bytes (no XML, no simulation)")
     print(f"{'server':8} {'clients':>7} {'turns':>8} {'turns/s':>9} {'(min-max)':>13} {'cpu us/turn':>11} {'client cpu':>10}  ratio to rddlsim (1 client)")
     for r in rows:
         rate = float(r["turns_per_s"])  # type: ignore[arg-type]
@@ -441,18 +473,26 @@ def main() -> None:
         else:
             lo, hi = QUOTED_RDDLSIM
             ratio = f"{rate / hi:5.1f}x-{rate / lo:.1f}x (quoted 420-670/s, not this run)"
-        spread = f"({r['min']:.0f}-{r['max']:.0f})" if "min" in r else ""
+        spread = f"({r['min']:.0f}-{r['max']:.0f})"
         print(f"{r['server']:8} {r['clients']:>7} {r['turns']:>8} {rate:>9.0f} {spread:>13} "
               f"{float(r['server_cpu_us_per_turn']):11.0f} {float(r['client_cpu_us_per_turn']):10.0f}  {ratio}")  # type: ignore[arg-type]
-    ours = [r for r in rows if r["server"] == "ippc"]
-    if len(ours) > 1:
-        trend = " >= ".join(f"{r['turns_per_s']:.0f}" for r in ours)
-        holds = all(float(b["turns_per_s"]) >= 0.9 * float(a["turns_per_s"])  # type: ignore[arg-type]
-                    for a, b in zip(ours, ours[1:], strict=False))
-        print(f"aggregate as clients are added: {trend}  ({'holds' if holds else 'FALLS'}, 10% noise allowed)")
+    if ("rddlsim", 1) in runs:
+        # the same pass: seconds apart, so a change of the machine's speed
+        # between passes cancels out
+        for key in ours:
+            pairs = [a[0] / b[0] for a, b in zip(runs[key, 1], runs["rddlsim", 1], strict=True)]
+            print(f"{key}: one client, ratio to rddlsim within each pass: "
+                  + ", ".join(f"{x:.1f}" for x in pairs) + f"  (median {statistics.median(pairs):.1f}x)")
+    for key in ours:
+        line = [r for r in rows if r["server"] == key]
+        if len(line) > 1:
+            trend = " -> ".join(f"{r['turns_per_s']:.0f}" for r in line)
+            holds = all(float(b["turns_per_s"]) >= 0.9 * float(a["turns_per_s"])  # type: ignore[arg-type]
+                        for a, b in zip(line, line[1:], strict=False))
+            print(f"{key}: aggregate as clients are added: {trend}  ({'holds' if holds else 'FALLS'}, 10% noise allowed)")
     floor = next(float(r["turns_per_s"]) for r in rows if r["server"] == "canned")  # type: ignore[arg-type]
-    print(f"one client: {float(ours[0]['turns_per_s']) / floor:.2f} of the canned-reply server's rate "  # type: ignore[arg-type]
-          f"({floor:.0f} turns/s)")
+    first = next(float(r["turns_per_s"]) for r in rows if r["server"] == "ippc")  # type: ignore[arg-type]
+    print(f"one client: {first / floor:.2f} of the canned-reply server's rate ({floor:.0f} turns/s)")
     print(f"memory per open session: {mem:.1f} KiB ({args.memory_sessions} sessions held at their first turn)")
 
 
