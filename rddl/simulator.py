@@ -93,6 +93,7 @@ import numpy as np
 
 from . import ast as A
 from .model import ACTION, DERIVED, INTERM, NON_FLUENT, OBSERV, STATE, Model, PVariable, Value
+from .prestep import split_step_source
 
 log = logging.getLogger(__name__)
 
@@ -151,6 +152,18 @@ class Step:
     done: Array  # (batch,) bool: termination holds in the next state
 
 
+class Prepared:
+    """The part of one state's next step that its actions do not decide
+    (`Simulator.prepare`), waiting for them (`Simulator.finish`)."""
+
+    __slots__ = ("state", "values", "rng_state")
+
+    def __init__(self, state: State, values: tuple[Any, ...], rng_state: Any):
+        self.state = state
+        self.values = values
+        self.rng_state = rng_state  # the bit generator's state before the draws
+
+
 class _Env:
     """A state and actions, as `_check_preconditions` takes them."""
 
@@ -168,6 +181,19 @@ class _Env:
 Scope = tuple[tuple[str, str], ...]  # ((var, type), ...)
 
 _new = object.__new__
+_UNBUILT = object()
+
+
+def _make_step(nxt: dict[str, Array], reward: Array, obs: dict[str, Array] | None, done: Array) -> Step:
+    # what Step(State(nxt), reward, obs, done) makes, without the frozen
+    # dataclass's setattr calls: a step is short
+    out = _new(Step)
+    fields = out.__dict__
+    fields["next_state"] = State(nxt)
+    fields["reward"] = reward
+    fields["observation"] = obs
+    fields["done"] = done
+    return out
 
 
 def _int_enum_value(name: str) -> int | None:
@@ -2883,16 +2909,67 @@ class Simulator:
             fn = self._step_small
         else:
             fn = self._function("_step_large")
-        nxt, reward, obs, done = _quietly(fn, values, self._actions(actions, batch), batch, rng, check)
-        # (what Step(State(nxt), reward, obs, done) makes, without the
-        # frozen dataclass's setattr calls: a step is short)
-        out = _new(Step)
-        fields = out.__dict__
-        fields["next_state"] = State(nxt)
-        fields["reward"] = reward
-        fields["observation"] = obs
-        fields["done"] = done
-        return out
+        return _make_step(*_quietly(fn, values, self._actions(actions, batch), batch, rng, check))
+
+    # -- a step in two parts (see `prestep`) -------------------------
+
+    def _split_one(self) -> tuple[Callable[..., Any], Callable[..., Any]] | None:
+        """The pre and post parts of the one-state step, or None."""
+        got: Any = self._compiled.get("_split_one", _UNBUILT)
+        if got is _UNBUILT:
+            self._step_one or self._function("_step_one")
+            with self._lock:
+                got = self._compiled.get("_split_one", _UNBUILT)
+                if got is _UNBUILT:
+                    got = None
+                    split = split_step_source(self._c.sources["_step_one"])
+                    if split is not None:
+                        pre_src, post_src, _ = split
+                        ns = self._c.ns
+                        label = f"<rddl {self.model.name}: "
+                        exec(compile(pre_src, label + "_pre_one>", "exec"), ns)  # noqa: S102
+                        exec(compile(post_src, label + "_post_one>", "exec"), ns)  # noqa: S102
+                        got = (ns.pop("_pre_one"), ns.pop("_post_one"))
+                        self._c.sources["_pre_one"], self._c.sources["_post_one"] = pre_src, post_src
+                    self._compiled["_split_one"] = got
+        return got  # type: ignore[no-any-return]
+
+    def prepare(self, state: State, rng: np.random.Generator) -> Prepared | None:
+        """Compute ahead what the next step of `state` (one state) does not
+        need its actions for: its random draws, and every value that depends
+        on the state and the draws alone. `finish` completes the step when
+        the actions are known; `unprepare` gives the draws back if it never
+        happens. `finish(prepare(state, rng), actions)` equals `step(state,
+        actions, rng)` exactly, and leaves `rng` where the step leaves it.
+
+        None (and `rng` untouched) for a batch of several states, when every
+        part of the step needs the actions, or when the part computed ahead
+        raised: `step` then computes (or raises) as usual."""
+        split = self._split_one()
+        if split is None or state.batch != 1:
+            return None
+        bitgen = rng.bit_generator
+        saved = bitgen.state
+        try:
+            values = _quietly(split[0], state.values, 1, rng)
+        except Exception:  # noqa: BLE001 - the step itself raises it, in its place
+            bitgen.state = saved
+            return None
+        return Prepared(state, values, saved)
+
+    def finish(self, prepared: Prepared, actions: Mapping[str, Array] | None, check: bool = True) -> Step:
+        """The step `prepared` was made for, with these actions (as `step`
+        takes them). A step that raises may leave the generator further on
+        than `step` would have (its draws were made ahead)."""
+        split = self._split_one()
+        assert split is not None
+        return _make_step(*_quietly(split[1], prepared.state.values, self._actions(actions, 1), 1, check, *prepared.values))
+
+    @staticmethod
+    def unprepare(prepared: Prepared, rng: np.random.Generator) -> None:
+        """Put `rng` back where it was before `prepare` drew for a step that
+        will not happen (so the next step draws what it would have drawn)."""
+        rng.bit_generator.state = prepared.rng_state
 
     def _check_preconditions(self, env: _Env, actions: Mapping[str, Array], batch: int) -> None:
         """Raise `SimulationError` for the first constraint the actions

@@ -472,17 +472,23 @@ class Session:
         # what a noop decodes to, the same every turn (stepped as None: the
         # simulator's own cached defaults)
         noop = codec.actions_from(())
+        prepare = sim.prepare
         while True:
             sent, xml = instance.turn_fluents(codec, state, observation)
             await channel.send_turn(rnd.turns + 1, float(self._ms()), rnd.immediate, xml)
             if store is not None:
                 sent_at = time.time()
+            # while the client thinks: the draws of the next step and all
+            # that the state alone decides (exact whatever the actions are)
+            prepared = prepare(state, rng)
             actions = await self._expect(Actions)
             if store is not None:
                 received_at = time.time()
             decoded = self._decode_actions(codec, actions) if actions.actions else noop
             why = codec.check(state, decoded)
             if why is not None:
+                if prepared is not None:
+                    sim.unprepare(prepared, rng)  # this step never happens
                 if cfg.individual_session:
                     # rddlsim exits (code 1) here in individual-session mode
                     raise SessionDropped(f"illegal actions in individual-session mode: {why}")
@@ -492,7 +498,11 @@ class Session:
             try:
                 # the constraints were checked above; the step checks the
                 # invariants (and keeps numpy's floating-point warnings quiet)
-                step = sim.step(state, None if decoded is noop else decoded.arrays, rng, check=invariants)
+                arrays = None if decoded is noop else decoded.arrays
+                if prepared is not None:
+                    step = sim.finish(prepared, arrays, check=invariants)
+                else:
+                    step = sim.step(state, arrays, rng, check=invariants)
             except SimulationError as err:
                 raise SessionDropped(f"simulation error in round {rnd.number}, turn {rnd.turns + 1}: {err}") from None
             reward = float(step.reward[0])
