@@ -98,6 +98,7 @@ def main(
                 bound = await nursery.start(_serve_workers_and_stop, config, str(rddl_dir), n_workers, nursery.cancel_scope)
             else:
                 bound = await nursery.start(_serve_and_stop, config, registry, nursery.cancel_scope)
+            _listening[0] = True
             click.echo(f"listening on {host}:{bound}", err=False)
             sys.stdout.flush()
             click.echo(f"serving {len(registry)} instance(s): {', '.join(registry.names()[:8])}"
@@ -106,17 +107,30 @@ def main(
 
     try:
         status = trio.run(run)
-    except KeyboardInterrupt:
-        status = None
-    except WorkerError as err:
-        raise click.ClickException(str(err)) from None
-    except OSError as err:
-        raise click.ClickException(f"cannot listen on {host}:{port}: {err}") from None
+    except BaseException as exc:  # trio hands some errors over in exception groups
+        leaf = _leaf(exc)
+        if isinstance(leaf, KeyboardInterrupt):
+            status = None
+        elif isinstance(leaf, WorkerError):
+            raise click.ClickException(str(leaf)) from None
+        elif isinstance(leaf, OSError):
+            what = "server failed" if _listening[0] else f"cannot listen on {host}:{port}"
+            raise click.ClickException(f"{what}: {leaf}") from None
+        else:
+            raise
     if individual_session and status not in (None, "finished", "timeout"):
         sys.exit(1)
 
 
 _last_status: list[str | None] = [None]
+_listening = [False]
+
+
+def _leaf(exc: BaseException) -> BaseException:
+    """The one error inside nested exception groups of one error each."""
+    while isinstance(exc, BaseExceptionGroup) and len(exc.exceptions) == 1:
+        exc = exc.exceptions[0]
+    return exc
 
 
 def _workers(value: str, individual_session: bool) -> int:

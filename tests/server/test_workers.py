@@ -245,3 +245,18 @@ def _state(pid: int) -> str:
 def test_workers_option_errors(args: list[str], message: str) -> None:
     r = subprocess.run([*SERVER, str(RDDL), *args], capture_output=True, text=True, timeout=60)
     assert r.returncode == 2 and message in r.stderr and "--workers" in r.stderr
+
+
+@pytest.mark.parametrize("workers", ["1", "2"])
+def test_port_in_use_is_a_clear_error(workers: str) -> None:
+    import socket
+
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        r = subprocess.run([*SERVER, str(RDDL), "--port", str(port), "--workers", workers],
+                           capture_output=True, text=True, timeout=60)
+    assert r.returncode == 1
+    assert f"cannot listen on 127.0.0.1:{port}" in r.stderr and "Address already in use" in r.stderr
+    assert "Traceback" not in r.stderr
