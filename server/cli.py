@@ -35,7 +35,7 @@ from .workers import WorkerError, default_workers, serve_with_workers, supported
 @click.option("--db", type=click.Path(dir_okay=False, path_type=Path), help="SQLite result database (sessions, rounds, steps).")
 @click.option("--transcripts", type=click.Path(file_okay=False, path_type=Path), help="Record every message of every session here (JSON lines).")
 @click.option("--idle-timeout", type=float, default=None, help="Close a session whose client is silent this many seconds (off by default, as rddlsim).")
-@click.option("--busy-poll-us", type=float, default=DEFAULT_BUSY_POLL_US, show_default=True, help="Microseconds a lone session polls for its client's answer before it sleeps; 0 = off.")
+@click.option("--busy-poll-us", type=float, default=DEFAULT_BUSY_POLL_US, show_default=True, help="Microseconds a lone session polls for its client's answer before it sleeps; 0 = off (always off with one CPU).")
 @click.option("--workers", default="1", show_default=True, metavar="N|auto", help="Processes that play the sessions (one listener hands each connection to the least busy); auto = one per core. Sessions are numbered and seeded as with one.")
 @click.option("-q", "--quiet", is_flag=True, help="Log warnings only.")
 def main(
@@ -69,6 +69,10 @@ def main(
     if not 0 <= busy_poll_us <= 10_000:
         raise click.BadParameter("must be between 0 and 10000", param_hint="--busy-poll-us")
     n_workers = _workers(workers, individual_session)
+    if busy_poll_us and default_workers() < 2:
+        # with one CPU the poll would only keep the client from answering
+        logging.getLogger(__name__).info("one CPU: the busy poll is off")
+        busy_poll_us = 0.0
     try:
         registry = Registry.load(rddl_dir)
     except RDDLError as err:

@@ -9,7 +9,7 @@ DEFAULT_PORT = 2323
 DEFAULT_ROUNDS = 30
 DEFAULT_TIMEOUT = 1080  # seconds: rddlsim's 18 minutes
 DEFAULT_TIME_ALLOWED_MS = 1_080_000.0
-DEFAULT_BUSY_POLL_US = 100.0  # rddl-server's --busy-poll-us
+DEFAULT_BUSY_POLL_US = 1000.0  # rddl-server's --busy-poll-us
 
 
 @dataclass(frozen=True)

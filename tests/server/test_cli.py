@@ -130,3 +130,20 @@ def test_individual_session_exits_after_one(tmp_path: Path) -> None:
     finally:
         if proc.poll() is None:
             proc.kill()
+
+
+def test_busy_poll_is_off_with_one_cpu() -> None:
+    import shutil
+
+    if shutil.which("taskset") is None:
+        import pytest
+
+        pytest.skip("no taskset")
+    proc = subprocess.Popen(["taskset", "-c", "0", *SERVER, str(RDDL), "--port", "0"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        assert proc.stdout is not None and proc.stdout.readline().startswith("listening on")
+    finally:
+        proc.terminate()
+        _, err = proc.communicate(timeout=20)
+    assert "one CPU: the busy poll is off" in err
