@@ -260,3 +260,24 @@ def test_port_in_use_is_a_clear_error(workers: str) -> None:
     assert r.returncode == 1
     assert f"cannot listen on 127.0.0.1:{port}" in r.stderr and "Address already in use" in r.stderr
     assert "Traceback" not in r.stderr
+
+
+@pytest.mark.skipif(not Path("/proc/self/task").exists(), reason="needs /proc")
+def test_workers_of_a_killed_main_process_finish_their_sessions_and_exit() -> None:
+    proc, port = start("--rounds", "1", "--workers", "2", "-q")
+    workers = _children(proc.pid)
+    try:
+        async def orphaned() -> None:
+            c = await _held(port, "orphan")
+            os.kill(proc.pid, signal.SIGKILL)
+            proc.wait(10)
+            assert await _finish(c) == 4  # the session goes on to its end
+
+        trio.run(orphaned)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    deadline = time.monotonic() + 10
+    while any(_state(w) != "Z" for w in workers) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert [_state(w) for w in workers] == ["Z", "Z"]
