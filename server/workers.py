@@ -230,8 +230,9 @@ class WorkerPool:
                 msg = b""
             if not msg:
                 w.alive = False
-                ctrl.close()
                 w.ctrl = None
+                trio.lowlevel.notify_closing(ctrl)  # a hand-over waiting on it gives up
+                ctrl.close()
                 return
             kind = msg[:1]
             if kind == _READY:
@@ -289,6 +290,7 @@ class WorkerPool:
                 self._interrupt(w, "server stopped (worker killed)")
         for w in self.workers:
             if w.ctrl is not None:
+                trio.lowlevel.notify_closing(w.ctrl)
                 w.ctrl.close()
                 w.ctrl = None
         self._map.close()
@@ -318,7 +320,10 @@ class WorkerPool:
                 socket.send_fds(ctrl, [_START + _NUM.pack(sid)], [fd])
                 return True
             except (BlockingIOError, InterruptedError):
-                await trio.lowlevel.wait_writable(ctrl)
+                try:
+                    await trio.lowlevel.wait_writable(ctrl)
+                except trio.ClosedResourceError:  # the worker died meanwhile
+                    return False
             except OSError as err:
                 log.warning("%r cannot take session %d: %s", w, sid, err)
                 return False
