@@ -206,7 +206,9 @@ class WorkerPool:
                 return
             if not w.ready.is_set() and not w.deaths:
                 raise WorkerError(f"worker {w.index} exited ({_status(code)}) before it was ready; see its log above")
-            log.error("%r exited (%s) with %d open session(s) %s", w, _status(code), len(lost), lost)
+            # (exit code 0: it was stopped by a signal of its own, not by ours)
+            (log.warning if code == 0 else log.error)(
+                "%r exited (%s) with %d open session(s) %s", w, _status(code), len(lost), lost)
             self._interrupt(w, f"worker process died ({_status(code)})")
             now = time.monotonic()
             w.deaths = [t for t in w.deaths if now - t < RESPAWN_WINDOW] + [now]
