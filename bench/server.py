@@ -19,21 +19,25 @@ that are precomputed bytes. No XML parser, no trio, no threads. The very same
 client plays against ours, against a server answering with canned bytes, and
 against rddlsim, so the ratios compare servers, not clients.
 
-The one-client figures are the median of `--repeat` sessions, with ours,
-canned and rddlsim taking turns (ours, canned, rddlsim, ours, ...) so that a
-load change on a shared machine hits all of them alike. With
-`--rddlsim-classpath` (a build of rddlsim you made outside this repository;
-it is started with a temporary folder as its working directory, where it
-writes its log) the ratio is against rddlsim measured in the same run, after
-a warm-up session (warm JVM). Without it, the ratio is against the figure
-quoted in the issue (420-670 turns/s for one client on a 2-core machine),
-which is not a same-run reference: read it as such. The aggregates for more
-clients are the median of up to three runs of all of them at once.
+Our server is measured twice: as one process (`ippc`) and with `--workers`
+(default `auto`: one per core; `ippc-wN`). Every line of the table is
+measured once per pass, all lines taking turns within the pass (one client
+against each server, then 10 and 50 clients against each of ours), and a
+line's figure is the median of `--repeat` passes, so that a load change on a
+shared machine hits all of them alike. With `--rddlsim-classpath` (a build of
+rddlsim you made outside this repository; it is started with a temporary
+folder as its working directory, where it writes its log) the ratio is
+against rddlsim measured in the same run, after a warm-up session (warm JVM),
+and it is also printed within each pass (seconds apart) and best run to best
+run. Without it, the ratio is against the figure quoted in the issue (420-670
+turns/s for one client on a 2-core machine), which is not a same-run
+reference: read it as such.
 
 The canned-reply server is trio's streams and the kernel only (no XML, no
 simulation): what a turn costs before any protocol work is done. Our server runs as a
 separate process started as users start it (`rddl-server ... -q`); "cpu
-us/turn" is that process's user + system CPU time divided by the turns.
+us/turn" is the user + system CPU time of that process and its workers
+divided by the turns.
 Memory per session is the growth of the server's RSS with `--memory-sessions`
 sessions held open at their first turn.
 """
