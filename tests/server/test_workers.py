@@ -281,3 +281,31 @@ def test_workers_of_a_killed_main_process_finish_their_sessions_and_exit() -> No
     while any(_state(w) != "Z" for w in workers) and time.monotonic() < deadline:
         time.sleep(0.05)
     assert [_state(w) for w in workers] == ["Z", "Z"]
+
+
+def test_200_concurrent_clients_on_workers_get_their_results_alone() -> None:
+    """The load test of one process (test_load) on three workers: every
+    session ends, numbered 1-200, each as it plays alone."""
+    clients = 200
+    config = ServerConfig(port=0, rounds=2, seed=7)
+    results: list[dict[str, Any]] = []
+
+    async def body(port: int, pool: WorkerPool) -> None:
+        with trio.fail_after(120):
+            async with trio.open_nursery() as n:
+                for i in range(clients):
+                    async def one(i: int = i) -> None:
+                        results.append(await noop_session(port, client=f"c{i}"))
+
+                    n.start_soon(one)
+        await _until(lambda: pool.open_sessions == 0, "every end reported")
+
+    async def alone(k: int) -> dict[str, Any]:
+        async with running_server(ServerConfig(port=0, rounds=2, seed=7 + k - 1)) as (port, _):
+            return await noop_session(port, client="alone")
+
+    trio.run(_with_workers, config, 3, body)
+    assert sorted(r["session_id"] for r in results) == list(range(1, clients + 1))
+    for r in sorted(results, key=lambda r: r["session_id"])[:: clients // 8]:
+        a = trio.run(alone, r["session_id"])
+        assert (a["rounds"], a["states"]) == (r["rounds"], r["states"])
