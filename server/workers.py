@@ -25,7 +25,10 @@ its lone session's socket only while that count is 1).
 A worker that dies is logged with its exit status; the main process marks
 its open sessions interrupted in the database and starts another in its
 place (a worker that dies before it is ready stops the server: it could not
-load the instances). SIGINT/SIGTERM to the main process are passed on to the
+load the instances; one that dies 5 times within a minute is not restarted,
+and when that leaves no worker the server stops). A worker that does not read
+its hand-overs (it hangs) is passed over once its control socket is full, so
+the listener never waits on it. SIGINT/SIGTERM to the main process are passed on to the
 workers, which record their open sessions as interrupted, as one process
 does. A worker whose main process vanishes stops taking sessions and exits
 when its open sessions end.
@@ -109,6 +112,7 @@ class _Worker:
         self.alive = False
         self.started_at = 0.0
         self.deaths: list[float] = []
+        self.given_up = False  # died too often: not restarted
 
     def __repr__(self) -> str:
         pid = self.proc.pid if self.proc is not None else None
@@ -210,14 +214,31 @@ class WorkerPool:
             (log.warning if code == 0 else log.error)(
                 "%r exited (%s) with %d open session(s) %s", w, _status(code), len(lost), lost)
             self._interrupt(w, f"worker process died ({_status(code)})")
+            if not await self._restart(w):
+                return
+
+    async def _restart(self, w: _Worker) -> bool:
+        """Start a dead worker again (after a pause that grows with its
+        recent deaths); False when it died too often. A start that fails
+        counts as a death. When no worker is left, the server stops: it
+        could only accept connections and close them."""
+        while True:
             now = time.monotonic()
             w.deaths = [t for t in w.deaths if now - t < RESPAWN_WINDOW] + [now]
             if len(w.deaths) >= MAX_RAPID_DEATHS:
                 log.error("worker %d died %d times in %g s: not restarted", w.index, len(w.deaths), RESPAWN_WINDOW)
-                return
+                w.given_up = True
+                if all(x.given_up for x in self.workers):
+                    raise WorkerError("every worker process died repeatedly; the server stops")
+                return False
             await trio.sleep(0.2 * len(w.deaths))
-            self._spawn(w)
+            try:
+                self._spawn(w)
+            except WorkerError as err:
+                log.error("%s", err)
+                continue
             log.warning("worker %d restarted (pid %d)", w.index, w.proc.pid if w.proc else -1)
+            return True
 
     async def _read(self, w: _Worker) -> None:
         ctrl = w.ctrl
@@ -316,20 +337,25 @@ class WorkerPool:
             sock.close()
 
     async def _send(self, w: _Worker, sid: int, fd: int) -> bool:
+        """Pass the connection to `w`; False when it cannot take it now. A
+        worker whose control socket is full (hundreds of hand-overs it has
+        not read: it hangs) is passed over rather than waited for, so one
+        stuck worker never stops the accept loop."""
         ctrl = w.ctrl
-        while ctrl is not None:
+        if ctrl is None:
+            return False
+        for _ in range(2):
             try:
                 socket.send_fds(ctrl, [_START + _NUM.pack(sid)], [fd])
                 return True
-            except (BlockingIOError, InterruptedError):
-                try:
-                    await trio.lowlevel.wait_writable(ctrl)
-                except trio.ClosedResourceError:  # the worker died meanwhile
-                    return False
+            except InterruptedError:
+                continue
+            except BlockingIOError:
+                log.warning("%r does not read its hand-overs; session %d goes elsewhere", w, sid)
+                return False
             except OSError as err:
                 log.warning("%r cannot take session %d: %s", w, sid, err)
                 return False
-            ctrl = w.ctrl
         return False
 
 
@@ -423,7 +449,7 @@ async def _worker(
             _tell(ctrl, _END + _NUM.pack(sid))
 
     async def take_sessions(sessions: trio.Nursery) -> None:
-        ctrl.send(_READY)
+        _tell(ctrl, _READY)  # (a main process gone already: the loop below ends at once)
         while True:
             try:
                 msg, fds, _, _ = socket.recv_fds(ctrl, 64, 4)
@@ -437,9 +463,16 @@ async def _worker(
                 log.warning("the main process is gone: no new sessions; exiting when the open ones end")
                 return
             if msg[:1] != _START or len(msg) != 1 + _NUM.size or len(socks) != 1:
-                log.error("unexpected message from the main process %r", msg[:20])
                 for s in socks:
                     s.close()
+                if msg[:1] == _START and len(msg) == 1 + _NUM.size:
+                    # a hand-over whose descriptor did not arrive (the table is
+                    # full): the client sees its connection close; say it ended
+                    sid = _NUM.unpack_from(msg, 1)[0]
+                    log.error("session %d: its connection did not arrive (too many open files?); dropped", sid)
+                    _tell(ctrl, _END + _NUM.pack(sid))
+                else:
+                    log.error("unexpected message from the main process %r", msg[:20])
                 continue
             sessions.start_soon(play, _NUM.unpack_from(msg, 1)[0], socks[0])
 

@@ -309,3 +309,56 @@ def test_200_concurrent_clients_on_workers_get_their_results_alone() -> None:
     for r in sorted(results, key=lambda r: r["session_id"])[:: clients // 8]:
         a = trio.run(alone, r["session_id"])
         assert (a["rounds"], a["states"]) == (r["rounds"], r["states"])
+
+
+def test_a_hung_worker_never_stops_the_accept_loop() -> None:
+    """A stopped worker reads no hand-overs; once its control socket is full
+    (a few hundred), connections go to the other worker instead of the
+    accept loop waiting on it."""
+    config = ServerConfig(port=0, rounds=1)
+
+    async def body(port: int, pool: WorkerPool) -> None:
+        w0, w1 = pool.workers
+        pid = w0.proc.pid  # type: ignore[union-attr]
+        os.kill(pid, signal.SIGSTOP)
+        try:
+            socks = []
+            with trio.fail_after(60):
+                for i in range(600):
+                    s = trio.socket.socket()
+                    await s.connect(("127.0.0.1", port))
+                    socks.append(s)
+                    if i % 50 == 0:
+                        await trio.sleep(0.02)
+                await _until(lambda: pool.next_id == 600, "all 600 accepted", 30)
+            assert len(w0.open) < 600 - 250 and len(w1.open) > 300  # w0's socket filled up
+            for s in socks:
+                s.close()
+            late = await noop_session(port, client="late")
+            assert late["session_id"] == 601
+        finally:
+            os.kill(pid, signal.SIGCONT)
+
+    trio.run(_with_workers, config, 2, body)
+
+
+def test_when_every_worker_dies_repeatedly_the_server_stops(monkeypatch: pytest.MonkeyPatch) -> None:
+    import ippc.server.workers as W
+
+    monkeypatch.setattr(W, "MAX_RAPID_DEATHS", 2)
+    config = ServerConfig(port=0, rounds=1)
+
+    async def body(port: int, pool: WorkerPool) -> None:
+        with trio.fail_after(60):
+            while True:
+                for w in pool.workers:
+                    if w.alive and w.ready.is_set() and w.proc is not None and w.proc.poll() is None:
+                        os.kill(w.proc.pid, signal.SIGKILL)
+                await trio.sleep(0.05)
+
+    with pytest.raises(BaseException) as info:
+        trio.run(_with_workers, config, 2, body)
+    leaf: BaseException = info.value
+    while isinstance(leaf, BaseExceptionGroup) and len(leaf.exceptions) == 1:
+        leaf = leaf.exceptions[0]
+    assert isinstance(leaf, W.WorkerError) and "every worker process died repeatedly" in str(leaf)
