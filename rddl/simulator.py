@@ -184,6 +184,15 @@ _new = object.__new__
 _UNBUILT = object()
 
 
+def _broadcasts_to(shape: tuple[int, ...], target: tuple[int, ...]) -> bool:
+    """Whether an array of `shape` broadcasts against one of `target`
+    without changing `target`."""
+    try:
+        return np.broadcast_shapes(shape, target) == target
+    except ValueError:
+        return False
+
+
 def _make_step(nxt: dict[str, Array], reward: Array, obs: dict[str, Array] | None, done: Array) -> Step:
     # what Step(State(nxt), reward, obs, done) makes, without the frozen
     # dataclass's setattr calls: a step is short
@@ -1025,10 +1034,7 @@ class _Compiler:
             return None
         if int(np.prod(x.shape)) > _WIDEN_LIMIT:
             return None
-        try:
-            if np.broadcast_shapes(k.shape, x.shape) != x.shape:
-                return None
-        except ValueError:
+        if not _broadcasts_to(k.shape, x.shape):
             return None
         out = list(args)
         out[i] = self.const(np.broadcast_to(k.value, x.shape), k.rtype)
@@ -1054,10 +1060,7 @@ class _Compiler:
             return None
         if k.dtype.kind not in "biuf" or k.value.ndim != len(x.shape) or not k.value.size:
             return None
-        try:
-            if np.broadcast_shapes(k.shape, x.shape) != x.shape:
-                return None
-        except ValueError:
+        if not _broadcasts_to(k.shape, x.shape):
             return None
         cells = int(np.prod(x.shape))
         flat = k.value.reshape(-1)

@@ -110,7 +110,6 @@ class _Worker:
         self.open: set[int] = set()
         self.ready = trio.Event()
         self.alive = False
-        self.started_at = 0.0
         self.deaths: list[float] = []
         self.given_up = False  # died too often: not restarted
 
@@ -176,7 +175,6 @@ class WorkerPool:
         w.ctrl = parent
         w.ready = trio.Event()
         w.alive = True
-        w.started_at = time.monotonic()
 
     async def run(self, *, task_status: trio.TaskStatus[None] = trio.TASK_STATUS_IGNORED) -> None:
         """Start the workers, report when all are ready, then watch them
@@ -344,18 +342,13 @@ class WorkerPool:
         ctrl = w.ctrl
         if ctrl is None:
             return False
-        for _ in range(2):
-            try:
-                socket.send_fds(ctrl, [_START + _NUM.pack(sid)], [fd])
-                return True
-            except InterruptedError:
-                continue
-            except BlockingIOError:
-                log.warning("%r does not read its hand-overs; session %d goes elsewhere", w, sid)
-                return False
-            except OSError as err:
-                log.warning("%r cannot take session %d: %s", w, sid, err)
-                return False
+        try:
+            socket.send_fds(ctrl, [_START + _NUM.pack(sid)], [fd])  # (EINTR is retried by Python)
+            return True
+        except BlockingIOError:
+            log.warning("%r does not read its hand-overs; session %d goes elsewhere", w, sid)
+        except OSError as err:
+            log.warning("%r cannot take session %d: %s", w, sid, err)
         return False
 
 

@@ -225,3 +225,18 @@ async def noop_session(
     finally:
         await c.close()
     return out
+
+
+async def noop_sessions_at_once(port: int, n: int, timeout: float = 120.0) -> list[dict[str, Any]]:
+    """`n` whole noop sessions (`noop_session`, clients c0, c1, ...) played
+    at once; their results in the order they ended."""
+    results: list[dict[str, Any]] = []
+
+    async def one(i: int) -> None:
+        results.append(await noop_session(port, client=f"c{i}"))
+
+    with trio.fail_after(timeout):
+        async with trio.open_nursery() as nursery:
+            for i in range(n):
+                nursery.start_soon(one, i)
+    return results

@@ -3,10 +3,9 @@
 from __future__ import annotations
 
 import pytest
-import trio
 from ippc.server.config import ServerConfig
 
-from .harness import noop_session, running_server
+from .harness import noop_session, noop_sessions_at_once, running_server
 
 pytestmark = pytest.mark.trio
 
@@ -15,15 +14,8 @@ CLIENTS = 200
 
 async def test_200_concurrent_clients_get_their_results_alone() -> None:
     config = ServerConfig(port=0, rounds=2, seed=7)
-    results: list[dict] = []
     async with running_server(config) as (port, _):
-        with trio.fail_after(120):
-            async with trio.open_nursery() as n:
-                for i in range(CLIENTS):
-                    async def one(i: int = i) -> None:
-                        results.append(await noop_session(port, client=f"c{i}"))
-
-                    n.start_soon(one)
+        results = await noop_sessions_at_once(port, CLIENTS)
     assert len(results) == CLIENTS
     assert sorted(r["session_id"] for r in results) == list(range(1, CLIENTS + 1))
     assert all(len(r["rounds"]) == 2 for r in results)

@@ -24,6 +24,7 @@ from .harness import (
     ROUND_REQUEST,
     RawClient,
     noop_session,
+    noop_sessions_at_once,
     root_of,
     running_server,
     session_request,
@@ -92,16 +93,7 @@ def test_sessions_are_numbered_seeded_and_recorded_as_in_one_process(tmp_path: P
     spread: list[list[int]] = []
 
     async def six(port: int) -> dict[int, dict[str, Any]]:
-        out: dict[int, dict[str, Any]] = {}
-
-        async def one(i: int) -> None:
-            r = await noop_session(port, client=f"c{i}")
-            out[r["session_id"]] = r
-
-        async with trio.open_nursery() as nursery:
-            for i in range(6):
-                nursery.start_soon(one, i)
-        return out
+        return {r["session_id"]: r for r in await noop_sessions_at_once(port, 6)}
 
     async def main() -> tuple[dict[int, Any], dict[int, Any]]:
         got: dict[int, Any] = {}
@@ -291,13 +283,7 @@ def test_200_concurrent_clients_on_workers_get_their_results_alone() -> None:
     results: list[dict[str, Any]] = []
 
     async def body(port: int, pool: WorkerPool) -> None:
-        with trio.fail_after(120):
-            async with trio.open_nursery() as n:
-                for i in range(clients):
-                    async def one(i: int = i) -> None:
-                        results.append(await noop_session(port, client=f"c{i}"))
-
-                    n.start_soon(one)
+        results.extend(await noop_sessions_at_once(port, clients))
         await _until(lambda: pool.open_sessions == 0, "every end reported")
 
     async def alone(k: int) -> dict[str, Any]:
