@@ -64,6 +64,8 @@ _START = b"S"
 _END = b"E"
 # a worker that has not reported ready after this long is taken for dead
 READY_TIMEOUT = 300.0
+# ... and a restarted one, after this long (the first start loaded the instances)
+RESTART_READY_TIMEOUT = 120.0
 # seconds a worker gets to record its sessions after SIGTERM before SIGKILL
 STOP_GRACE = 10.0
 # a worker that dies this many times within RESPAWN_WINDOW seconds is not restarted
@@ -199,7 +201,13 @@ class WorkerPool:
         """Read a worker's messages; when it dies, close its sessions and
         start another."""
         while True:
-            await self._read(w)
+            if w.deaths:  # a restart: nobody else waits for it to be ready
+                async with trio.open_nursery() as watchdog:
+                    watchdog.start_soon(self._kill_unless_ready, w)
+                    await self._read(w)
+                    watchdog.cancel_scope.cancel()
+            else:
+                await self._read(w)
             code = await self._reap(w)
             lost = sorted(w.open)
             w.open.clear()
@@ -237,6 +245,17 @@ class WorkerPool:
                 continue
             log.warning("worker %d restarted (pid %d)", w.index, w.proc.pid if w.proc else -1)
             return True
+
+    async def _kill_unless_ready(self, w: _Worker) -> None:
+        """A restarted worker that is not ready in time is killed (its
+        death counts like any other); until then it is given no sessions."""
+        with trio.move_on_after(RESTART_READY_TIMEOUT):
+            await w.ready.wait()
+            return
+        proc = w.proc
+        if proc is not None and proc.poll() is None:
+            log.error("%r was not ready %g s after its restart: killed", w, RESTART_READY_TIMEOUT)
+            proc.kill()
 
     async def _read(self, w: _Worker) -> None:
         ctrl = w.ctrl
