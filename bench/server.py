@@ -19,8 +19,9 @@ that are precomputed bytes. No XML parser, no trio, no threads. The very same
 client plays against ours, against a server answering with canned bytes, and
 against rddlsim, so the ratios compare servers, not clients.
 
-Our server is measured twice: as one process (`ippc`) and with `--workers`
-(default `auto`: one per core; `ippc-wN`). Every line of the table is
+Our server is measured twice: as one process (`ippc`, `--workers 1`) and
+with `--workers` (default `auto`, one per core, which is also rddl-server's
+default; `ippc-wN`). Every line of the table is
 measured once per pass, all lines taking turns within the pass (one client
 against each server, then 10 and 50 clients against each of ours), and a
 line's figure is the median of `--repeat` passes, so that a load change on a
@@ -467,7 +468,8 @@ def main() -> None:
     print(f"workload: {INSTANCE}, {args.rounds} rounds x horizon 40 per session, noop raw client, loopback"
           + (", ippc with --db" if args.db else ""))
     print(f"median of {args.repeat} runs of each line, all lines taking turns in every pass (min-max in brackets)")
-    print("ippc = rddl-server (one process)" + (f"; ippc-w{workers} = rddl-server --workers {workers}" if workers > 1 else "")
+    print("ippc = rddl-server --workers 1 (one process)"
+          + (f"; ippc-w{workers} = rddl-server --workers {workers}" if workers > 1 else "")
           + "; canned = a trio server that answers with fixed bytes (no XML, no simulation)")
     print(f"{'server':8} {'clients':>7} {'turns':>8} {'turns/s':>9} {'(min-max)':>13} {'cpu us/turn':>11} {'client cpu':>10}  ratio to rddlsim (1 client)")
     for r in rows:

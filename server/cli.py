@@ -36,7 +36,7 @@ from .workers import WorkerError, default_workers, serve_with_workers, supported
 @click.option("--transcripts", type=click.Path(file_okay=False, path_type=Path), help="Record every message of every session here (JSON lines).")
 @click.option("--idle-timeout", type=float, default=None, help="Close a session whose client is silent this many seconds (off by default, as rddlsim).")
 @click.option("--busy-poll-us", type=float, default=DEFAULT_BUSY_POLL_US, show_default=True, help="Microseconds a lone session polls for its client's answer before it sleeps; 0 = off (always off with one CPU).")
-@click.option("--workers", default="1", show_default=True, metavar="N|auto", help="Processes that play the sessions (one listener hands each connection to the least busy); auto = one per core. Sessions are numbered and seeded as with one.")
+@click.option("--workers", default="auto", show_default=True, metavar="N|auto", help="Processes that play the sessions (one listener hands each connection to the least busy); auto = one per core (one process on one core, with --individual-session, or where workers cannot run). Sessions are numbered and seeded as with one.")
 @click.option("-q", "--quiet", is_flag=True, help="Log warnings only.")
 def main(
     rddl_dir: Path,
@@ -138,18 +138,21 @@ def _leaf(exc: BaseException) -> BaseException:
 
 
 def _workers(value: str, individual_session: bool) -> int:
+    """The number of worker processes; 1 = none (one process plays all)."""
     if value.strip().lower() == "auto":
         n = default_workers()
-    else:
-        try:
-            n = int(value)
-        except ValueError:
-            raise click.BadParameter(f"{value!r} is not a number or 'auto'", param_hint="--workers") from None
-        if n < 1:
-            raise click.BadParameter("must be at least 1", param_hint="--workers")
-    if n > 1 and individual_session:
-        if value.strip().lower() == "auto":
+        why = "--individual-session" if individual_session else supported()
+        if n > 1 and why is not None:
+            logging.getLogger(__name__).info("--workers auto: one process (%s)", why)
             return 1
+        return n
+    try:
+        n = int(value)
+    except ValueError:
+        raise click.BadParameter(f"{value!r} is not a number or 'auto'", param_hint="--workers") from None
+    if n < 1:
+        raise click.BadParameter("must be at least 1", param_hint="--workers")
+    if n > 1 and individual_session:
         raise click.BadParameter("--individual-session plays one session: use one worker", param_hint="--workers")
     if n > 1 and (why := supported()) is not None:
         raise click.BadParameter(why, param_hint="--workers")

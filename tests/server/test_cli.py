@@ -76,8 +76,10 @@ def test_busy_poll_bounds() -> None:
 
 
 def test_kill_9_loses_no_answered_step(tmp_path: Path) -> None:
+    # one process: killing it kills the session (the workers of a killed
+    # main process finish theirs: test_workers)
     db = tmp_path / "results.db"
-    proc, port = start("--rounds", "30", "--db", str(db))
+    proc, port = start("--rounds", "30", "--db", str(db), "--workers", "1")
     try:
         answered = trio.run(play_turns, port, 12)
         os.kill(proc.pid, signal.SIGKILL)

@@ -226,6 +226,39 @@ def _state(pid: int) -> str:
         return "Z"
 
 
+@pytest.mark.skipif(not Path("/proc/self/task").exists(), reason="needs /proc")
+@pytest.mark.parametrize(
+    ("prefix", "extra", "expected"),
+    [
+        ([], [], None),  # the default, auto: one worker per core
+        (["taskset", "-c", "0"], [], 0),  # one core: one process
+        ([], ["--individual-session"], 0),
+    ],
+    ids=["default", "one-core", "individual-session"],
+)
+def test_workers_auto_is_the_default(prefix: list[str], extra: list[str], expected: int | None) -> None:
+    import shutil
+
+    if prefix and shutil.which(prefix[0]) is None:
+        pytest.skip(f"no {prefix[0]}")
+    cores = len(os.sched_getaffinity(0))
+    if expected is None:
+        if cores < 2:
+            pytest.skip("one core here: auto is one process")
+        expected = cores
+    proc = subprocess.Popen([*prefix, *SERVER, str(RDDL), "--port", "0", "--rounds", "1", *extra],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        assert proc.stdout is not None and proc.stdout.readline().startswith("listening on")
+        children = _children(proc.pid)
+        assert len(children) == expected
+    finally:
+        proc.terminate()
+        _, err = proc.communicate(timeout=30)
+    if expected == 0 and not extra:
+        assert "one CPU: the busy poll is off" in err
+
+
 @pytest.mark.parametrize(
     ("args", "message"),
     [
