@@ -93,7 +93,7 @@ import numpy as np
 
 from . import ast as A
 from .model import ACTION, DERIVED, INTERM, NON_FLUENT, OBSERV, STATE, Model, PVariable, Value
-from .prestep import split_step_source
+from .prestep import POST_NAME, PRE_NAME, split_step_source
 
 log = logging.getLogger(__name__)
 
@@ -884,11 +884,15 @@ class _Compiler:
         return self.code.large
 
     def build(self, code: _Code) -> Callable[..., Any]:
-        source = code.source()
-        self.sources[code.name] = source
-        log.debug("generated %s:\n%s", code.name, source)
-        exec(compile(source, f"<rddl {self.model.name}: {code.name}>", "exec"), self.ns)  # noqa: S102
-        return self.ns.pop(code.name)  # type: ignore[no-any-return]
+        return self.define(code.name, code.source())
+
+    def define(self, name: str, source: str) -> Callable[..., Any]:
+        """The function `name` of generated `source`, compiled in the
+        generated code's namespace (its source kept in `sources`)."""
+        self.sources[name] = source
+        log.debug("generated %s:\n%s", name, source)
+        exec(compile(source, f"<rddl {self.model.name}: {name}>", "exec"), self.ns)  # noqa: S102
+        return self.ns.pop(name)  # type: ignore[no-any-return]
 
     def op(
         self,
@@ -2928,12 +2932,7 @@ class Simulator:
                     split = split_step_source(self._c.sources["_step_one"])
                     if split is not None:
                         pre_src, post_src, _ = split
-                        ns = self._c.ns
-                        label = f"<rddl {self.model.name}: "
-                        exec(compile(pre_src, label + "_pre_one>", "exec"), ns)  # noqa: S102
-                        exec(compile(post_src, label + "_post_one>", "exec"), ns)  # noqa: S102
-                        got = (ns.pop("_pre_one"), ns.pop("_post_one"))
-                        self._c.sources["_pre_one"], self._c.sources["_post_one"] = pre_src, post_src
+                        got = (self._c.define(PRE_NAME, pre_src), self._c.define(POST_NAME, post_src))
                     self._compiled["_split_one"] = got
         return got  # type: ignore[no-any-return]
 
