@@ -201,13 +201,11 @@ class WorkerPool:
         """Read a worker's messages; when it dies, close its sessions and
         start another."""
         while True:
-            if w.deaths:  # a restart: nobody else waits for it to be ready
-                async with trio.open_nursery() as watchdog:
+            async with trio.open_nursery() as watchdog:
+                if w.deaths:  # a restart: nobody else waits for it to be ready
                     watchdog.start_soon(self._kill_unless_ready, w)
-                    await self._read(w)
-                    watchdog.cancel_scope.cancel()
-            else:
                 await self._read(w)
+                watchdog.cancel_scope.cancel()
             code = await self._reap(w)
             lost = sorted(w.open)
             w.open.clear()
