@@ -81,6 +81,8 @@ def main(
         raise click.ClickException(f"no instance to serve under {rddl_dir}")
     if log_dir is not None:
         log_dir.mkdir(parents=True, exist_ok=True)
+    if db is not None:
+        _prepare_db(db)
     config = ServerConfig(
         host=host,
         port=port,
@@ -128,6 +130,20 @@ def main(
 
 _last_status: list[str | None] = [None]
 _listening = [False]
+
+
+def _prepare_db(db: Path) -> None:
+    """Create (or check) the result database once, before any session or worker
+    opens it: a bad file is refused here with one line, and the workers find it
+    already in WAL mode with its schema."""
+    import sqlite3
+
+    from .store import ResultStore
+
+    try:
+        ResultStore(db).close()
+    except (sqlite3.Error, OSError, RuntimeError) as err:
+        raise click.ClickException(f"--db {db}: {err}") from None
 
 
 def _leaf(exc: BaseException) -> BaseException:

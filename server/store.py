@@ -24,12 +24,15 @@ other). Each store tags the sessions it starts with an owner token, so that
 
 from __future__ import annotations
 
+import itertools
 import json
 import logging
 import os
+import random
 import socket
 import sqlite3
 import threading
+import time
 import uuid
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -145,6 +148,11 @@ def _opt_real(x: object | None) -> float | None:
     return None if x is None else _real(x)
 
 
+def _is_busy(err: sqlite3.OperationalError) -> bool:
+    text = str(err)
+    return "database is locked" in text or "database is busy" in text
+
+
 class ResultStore:
     """Sessions, rounds and steps in one SQLite database (WAL, ``synchronous=NORMAL``).
 
@@ -175,15 +183,31 @@ class ResultStore:
         )
         try:
             self._conn.execute(f"PRAGMA busy_timeout = {int(busy_timeout_ms)}")
-            mode = self._conn.execute("PRAGMA journal_mode = WAL").fetchone()[0]
-            if mode != "wal" and self.path != ":memory:":
-                log.warning("result store %s: journal mode is %r, not WAL", self.path, mode)
-            self._conn.execute("PRAGMA synchronous = NORMAL")
-            self._conn.execute("PRAGMA foreign_keys = ON")
-            self._create_schema()
+            # Several processes may open a new database at once (rddl-server's workers,
+            # parallel rddl-batch runs). Switching it to WAL needs an exclusive lock, and
+            # SQLite answers "database is locked" at once, without its busy handler, when
+            # that would deadlock with another connection's read; so the setup is retried
+            # for up to the busy timeout.
+            deadline = time.monotonic() + busy_timeout_ms / 1000.0
+            for attempt in itertools.count():
+                try:
+                    self._setup()
+                    break
+                except sqlite3.OperationalError as err:
+                    if not _is_busy(err) or time.monotonic() >= deadline:
+                        raise
+                    time.sleep(min(0.2, 0.005 * 2**attempt) * random.uniform(0.5, 1.0))
         except BaseException:
             self._conn.close()
             raise
+
+    def _setup(self) -> None:
+        mode = self._conn.execute("PRAGMA journal_mode = WAL").fetchone()[0]
+        if mode != "wal" and self.path != ":memory:":
+            log.warning("result store %s: journal mode is %r, not WAL", self.path, mode)
+        self._conn.execute("PRAGMA synchronous = NORMAL")
+        self._conn.execute("PRAGMA foreign_keys = ON")
+        self._create_schema()
 
     def _create_schema(self) -> None:
         with self._tx() as cur:

@@ -69,6 +69,24 @@ def test_listening_line_and_bad_dir(tmp_path: Path) -> None:
     assert r.returncode != 0 and "no instance to serve" in r.stderr
 
 
+def test_a_bad_result_database_is_refused_in_one_line(tmp_path: Path) -> None:
+    newer = tmp_path / "newer.db"
+    conn = sqlite3.connect(newer)
+    conn.execute("PRAGMA user_version = 99")
+    conn.commit()
+    conn.close()
+    junk = tmp_path / "junk.db"
+    junk.write_bytes(b"not a database at all, " * 100)
+    cases = [(newer, "schema version 99"), (junk, "file is not a database")]
+    for db, why in cases:
+        for workers in ("1", "2"):
+            r = subprocess.run([*SERVER, str(RDDL), "--port", "0", "--workers", workers, "--db", str(db)],
+                               capture_output=True, text=True, timeout=60)
+            assert r.returncode == 1, r.stderr
+            assert f"Error: --db {db}: " in r.stderr and why in r.stderr, r.stderr
+            assert "Traceback" not in r.stderr and "listening on" not in r.stdout
+
+
 def test_busy_poll_bounds() -> None:
     for bad in ("-1", "20000"):
         r = subprocess.run([*SERVER, str(RDDL), "--busy-poll-us", bad], capture_output=True, text=True, timeout=60)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import multiprocessing
 import os
 import selectors
 import signal
@@ -12,6 +13,7 @@ import textwrap
 import time
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -387,3 +389,75 @@ def test_missing_folder_is_created(tmp_path: Path) -> None:
         sid = new_session(store)
     with ResultStore(path) as store:
         assert store.session(sid)["instance"] == "sysadmin_inst_mdp__1"
+
+
+def _open_each(paths: list[str], barrier: Any, failures: Any) -> None:
+    for path in paths:
+        barrier.wait(timeout=30)
+        try:
+            ResultStore(path).close()
+        except sqlite3.OperationalError as err:
+            failures.put(f"{path}: {err}")
+
+
+def test_processes_opening_a_new_file_at_once_all_succeed(tmp_path: Path) -> None:
+    # rddl-server's workers and parallel batch runs may create one database at the
+    # same moment; switching a new file to WAL then fails at once with "database is
+    # locked" (SQLite skips its busy handler there), which the store retries.
+    # Without the retry this test failed in each of three runs (120 files, 4 processes).
+    ctx = multiprocessing.get_context("fork")
+    paths = [str(tmp_path / f"r{k}.db") for k in range(120)]
+    barrier = ctx.Barrier(4)
+    failures = ctx.Queue()
+    procs = [ctx.Process(target=_open_each, args=(paths, barrier, failures)) for _ in range(4)]
+    for p in procs:
+        p.start()
+    for p in procs:
+        p.join(timeout=120)
+    assert all(p.exitcode == 0 for p in procs), [p.exitcode for p in procs]
+    found = []
+    while not failures.empty():
+        found.append(failures.get(timeout=5))
+    assert found == []
+    for path in paths[:3]:
+        with ResultStore(path) as store:
+            assert store.sessions() == []
+            assert store._conn.execute("PRAGMA journal_mode").fetchone()[0] == "wal"
+
+
+def test_setup_is_retried_on_a_lock_and_only_on_a_lock(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    real = ResultStore._setup
+    calls = []
+
+    def flaky(self: ResultStore) -> None:
+        calls.append(1)
+        if len(calls) <= 2:
+            raise sqlite3.OperationalError("database is locked")
+        real(self)
+
+    monkeypatch.setattr(ResultStore, "_setup", flaky)
+    with ResultStore(tmp_path / "a.db") as store:
+        assert store.sessions() == []
+    assert len(calls) == 3
+
+    def broken(self: ResultStore) -> None:
+        calls.append(1)
+        raise sqlite3.OperationalError("disk I/O error")
+
+    calls.clear()
+    monkeypatch.setattr(ResultStore, "_setup", broken)
+    with pytest.raises(sqlite3.OperationalError, match="disk I/O"):
+        ResultStore(tmp_path / "b.db")
+    assert len(calls) == 1
+
+    def locked(self: ResultStore) -> None:
+        calls.append(1)
+        raise sqlite3.OperationalError("database is locked")
+
+    calls.clear()
+    monkeypatch.setattr(ResultStore, "_setup", locked)
+    t0 = time.monotonic()
+    with pytest.raises(sqlite3.OperationalError, match="locked"):
+        ResultStore(tmp_path / "c.db", busy_timeout_ms=300)
+    assert 0.25 < time.monotonic() - t0 < 10
+    assert 2 < len(calls) < 100
