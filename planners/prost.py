@@ -71,6 +71,7 @@ _BINARY_CANDIDATES = (
 )
 
 _POLL = 0.02  # seconds between checks on the process
+_KILL_WAIT = 10.0  # seconds to wait for the group's members to die after SIGKILL
 
 _ROUND_RE = re.compile(r"^>>> END OF ROUND (\d+) -- REWARD RECEIVED: (\S+)\s*$")
 _TOTAL_RE = re.compile(r"^>>> END OF SESSION\s+-- TOTAL REWARD: (\S+)\s*$")
@@ -366,6 +367,14 @@ class ProstPlanner(ExternalPlanner):
         # PROST is unreaped here (waitid with WNOWAIT), so the group id is
         # still ours: this cannot hit a stranger.
         _killpg(pgid, signal.SIGKILL)
+        # A SIGKILL takes effect when the kernel next runs its target, which on a
+        # busy machine may be after killpg returns: wait (bounded) until no member
+        # is left alive, so that none outlives this call.
+        end = time.monotonic() + _KILL_WAIT
+        while (members := _proc_group_members(pgid, exclude=proc.pid)) and time.monotonic() < end:
+            time.sleep(_POLL)
+        if members:
+            log.error("PROST's process group %d: %s still alive %g s after SIGKILL", pgid, members, _KILL_WAIT)
         try:
             proc.wait(timeout=10)
         except subprocess.TimeoutExpired:
