@@ -184,7 +184,7 @@ class ResultStore:
         try:
             self._conn.execute(f"PRAGMA busy_timeout = {int(busy_timeout_ms)}")
             # Several processes may open a new database at once (rddl-server's workers,
-            # parallel rddl-batch runs). Switching it to WAL needs an exclusive lock, and
+            # several servers sharing one file). Switching it to WAL needs an exclusive lock, and
             # SQLite answers "database is locked" at once, without its busy handler, when
             # that would deadlock with another connection's read; so the setup is retried
             # for up to the busy timeout.
