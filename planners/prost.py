@@ -43,6 +43,7 @@ import signal
 import subprocess
 import tempfile
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import ClassVar
@@ -356,25 +357,20 @@ class ProstPlanner(ExternalPlanner):
         """SIGTERM to PROST's process group; SIGKILL once PROST and every
         other member are gone or the grace period is over; then reap PROST."""
         pgid = proc.pid  # start_new_session: PROST leads its own group
+
+        def others() -> list[int] | None:
+            return _proc_group_members(pgid, exclude=proc.pid)
+
         _killpg(pgid, signal.SIGTERM)
-        end = time.monotonic() + self.grace
-        while time.monotonic() < end:
-            if _exited(proc):
-                members = _proc_group_members(pgid, exclude=proc.pid)
-                if not members:
-                    break
-            time.sleep(_POLL)
+        _poll_until(lambda: _exited(proc) and not others(), self.grace)
         # PROST is unreaped here (waitid with WNOWAIT), so the group id is
         # still ours: this cannot hit a stranger.
         _killpg(pgid, signal.SIGKILL)
         # A SIGKILL takes effect when the kernel next runs its target, which on a
         # busy machine may be after killpg returns: wait (bounded) until no member
         # is left alive, so that none outlives this call.
-        end = time.monotonic() + _KILL_WAIT
-        while (members := _proc_group_members(pgid, exclude=proc.pid)) and time.monotonic() < end:
-            time.sleep(_POLL)
-        if members:
-            log.error("PROST's process group %d: %s still alive %g s after SIGKILL", pgid, members, _KILL_WAIT)
+        if not _poll_until(lambda: not others(), _KILL_WAIT):
+            log.error("PROST's process group %d: %s still alive %g s after SIGKILL", pgid, others(), _KILL_WAIT)
         try:
             proc.wait(timeout=10)
         except subprocess.TimeoutExpired:
@@ -431,6 +427,17 @@ def _signal_name(num: int) -> str:
         return signal.Signals(num).name
     except ValueError:
         return str(num)
+
+
+def _poll_until(done: Callable[[], bool], seconds: float) -> bool:
+    """Check `done` every `_POLL` seconds until it holds (True) or
+    `seconds` have passed (False)."""
+    end = time.monotonic() + seconds
+    while not done():
+        if time.monotonic() >= end:
+            return False
+        time.sleep(_POLL)
+    return True
 
 
 def _killpg(pgid: int, sig: signal.Signals) -> None:
