@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import multiprocessing
 import os
 import selectors
@@ -11,7 +12,7 @@ import subprocess
 import sys
 import textwrap
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -429,33 +430,30 @@ def test_setup_is_retried_on_a_lock_and_only_on_a_lock(tmp_path: Path, monkeypat
     real = ResultStore._setup
     calls = []
 
-    def flaky(self: ResultStore) -> None:
-        calls.append(1)
-        if len(calls) <= 2:
-            raise sqlite3.OperationalError("database is locked")
-        real(self)
+    def setup_failing(message: str, times: float) -> Callable[[ResultStore], None]:
+        """A `_setup` that raises `message` on its first `times` calls, then does the real one."""
 
-    monkeypatch.setattr(ResultStore, "_setup", flaky)
+        def setup(self: ResultStore) -> None:
+            calls.append(1)
+            if len(calls) <= times:
+                raise sqlite3.OperationalError(message)
+            real(self)
+
+        return setup
+
+    monkeypatch.setattr(ResultStore, "_setup", setup_failing("database is locked", 2))
     with ResultStore(tmp_path / "a.db") as store:
         assert store.sessions() == []
     assert len(calls) == 3
 
-    def broken(self: ResultStore) -> None:
-        calls.append(1)
-        raise sqlite3.OperationalError("disk I/O error")
-
     calls.clear()
-    monkeypatch.setattr(ResultStore, "_setup", broken)
+    monkeypatch.setattr(ResultStore, "_setup", setup_failing("disk I/O error", math.inf))
     with pytest.raises(sqlite3.OperationalError, match="disk I/O"):
         ResultStore(tmp_path / "b.db")
     assert len(calls) == 1
 
-    def locked(self: ResultStore) -> None:
-        calls.append(1)
-        raise sqlite3.OperationalError("database is locked")
-
     calls.clear()
-    monkeypatch.setattr(ResultStore, "_setup", locked)
+    monkeypatch.setattr(ResultStore, "_setup", setup_failing("database is locked", math.inf))
     t0 = time.monotonic()
     with pytest.raises(sqlite3.OperationalError, match="locked"):
         ResultStore(tmp_path / "c.db", busy_timeout_ms=300)
