@@ -12,18 +12,22 @@ install: $(STAMP)
 $(STAMP): pyproject.toml
 	@$(PYTHON) -c 'import sys; sys.exit(sys.version_info < (3, 11))' || \
 		{ echo "ippc needs Python >= 3.11 (found $$($(PYTHON) --version))"; exit 1; }
-	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
-	$(BIN)/python -m pip install --quiet --upgrade pip
-	$(BIN)/python -m pip install --quiet -e '.[test]'
-	touch $(STAMP)
+	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
+	@$(BIN)/python -m pip install -qq --upgrade pip
+	@$(BIN)/python -m pip install -qq -e '.[test]'
+	@touch $(STAMP)
 
-# The whole suite, corpus runs included (as CI runs it).
+# The whole suite, corpus runs included (as CI runs it): first everything that
+# can share the machine, on one pytest-xdist worker per core; then the tests
+# marked `alone` (load, worker processes, timing), one at a time.
 test: install
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q -n auto -m 'not alone'
+	$(BIN)/python -m pytest -q -m 'alone'
 
-# Everything but the slow corpus runs.
+# The loop while working: everything but the slow corpus runs and the tests
+# that must run alone, in parallel.
 test-fast: install
-	$(BIN)/python -m pytest -q -m 'not slow'
+	$(BIN)/python -m pytest -q -n auto -m 'not slow and not alone'
 
 # The main job: rddl-server on the bundled print-fetching domain, and
 # rddl-client playing a session against it with noop, with random and with

@@ -1,7 +1,8 @@
 """Turns per second of rddl-server over loopback, and memory per session.
 
-Workload (the issue's): sysadmin_inst_mdp__1 from the shared rddl-bench
-folder (10 computers, horizon 40), 30 rounds = 1200 turns per session, a
+Workload: sysadmin_inst_mdp__1, the IPPC 2011 SysAdmin instance 1 as the
+rddlrepository package ships it (10 computers, horizon 40), copied with its
+domain into a temporary folder that both servers load; 30 rounds = 1200 turns per session, a
 minimal raw Python client that answers every turn with `<actions/>`, as
 rddlsim's own throughput was measured (see PROTOCOL-rddlsim.md §11).
 
@@ -59,7 +60,6 @@ import time
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
-BENCH_RDDL = REPO.parent / "shared" / "rddlsim-transcripts" / "rddl-bench"
 INSTANCE = "sysadmin_inst_mdp__1"
 DECL = b'<?xml version="1.0" encoding="UTF-8"?>\n'
 QUOTED_RDDLSIM = (420.0, 670.0)
@@ -315,8 +315,20 @@ def memory_per_session(port: int, pid: int, n: int) -> float:
     return (during - base) / n
 
 
-def start_ours(rounds: int, db: Path | None, workers: int = 1) -> tuple[subprocess.Popen[str], int]:
-    cmd = [sys.executable, "-c", "from ippc.server.cli import main; main()", str(BENCH_RDDL),
+def bench_rddl(folder: Path) -> Path:
+    """A folder holding SysAdmin's IPPC 2011 domain and instance 1 from rddlrepository."""
+    from importlib import resources
+
+    source = Path(str(resources.files("rddlrepository"))) / "archive/competitions/IPPC2011/SysAdmin/MDP"
+    out = folder / "rddl"
+    out.mkdir()
+    for name in ("domain.rddl", "instance1.rddl"):
+        (out / name).write_bytes((source / name).read_bytes())
+    return out
+
+
+def start_ours(rddl: Path, rounds: int, db: Path | None, workers: int = 1) -> tuple[subprocess.Popen[str], int]:
+    cmd = [sys.executable, "-c", "from ippc.server.cli import main; main()", str(rddl),
            "--port", "0", "--rounds", str(rounds), "--timeout", "0", "-q", "--workers", str(workers)]
     if db is not None:
         cmd += ["--db", str(db)]
@@ -338,10 +350,10 @@ def start_canned(canned: dict[str, bytes], folder: Path) -> tuple[subprocess.Pop
     return proc, int(proc.stdout.readline().rsplit(":", 1)[1])
 
 
-def start_rddlsim(classpath: str, rounds: int, port: int, cwd: Path) -> subprocess.Popen[bytes]:
+def start_rddlsim(classpath: str, rddl: Path, rounds: int, port: int, cwd: Path) -> subprocess.Popen[bytes]:
     # rddlsim writes rddl-PORT.log into its working directory: a temporary one
     proc = subprocess.Popen(
-        ["java", "-Xmx1g", "-cp", classpath, "rddl.competition.Server", str(BENCH_RDDL), str(port), str(rounds), "0", "0", "0"],
+        ["java", "-Xmx1g", "-cp", classpath, "rddl.competition.Server", str(rddl), str(port), str(rounds), "0", "0", "0"],
         stdout=subprocess.DEVNULL,
         stderr=subprocess.DEVNULL,
         cwd=cwd,
@@ -402,8 +414,6 @@ def main() -> None:
 
         trio.run(echo_server, args.echo_server)
         return
-    if not BENCH_RDDL.is_dir():
-        raise SystemExit(f"missing {BENCH_RDDL} (the shared folder beside the checkout)")
     if args.workers == "auto":
         from ippc.server.workers import default_workers
 
@@ -414,7 +424,8 @@ def main() -> None:
     rows: list[dict[str, object]] = []
     with tempfile.TemporaryDirectory(prefix="ippc-bench-") as tmp:
         folder = Path(tmp)
-        proc, port = start_ours(args.rounds, folder / "results.sqlite" if args.db else None)
+        rddl = bench_rddl(folder)
+        proc, port = start_ours(rddl, args.rounds, folder / "results.sqlite" if args.db else None)
         procs: list[subprocess.Popen[str] | subprocess.Popen[bytes]] = [proc]
         try:
             canned: dict[str, bytes] = {}
@@ -424,7 +435,7 @@ def main() -> None:
             servers: dict[str, tuple[int, int]] = {"ippc": (port, proc.pid)}
             ours = ["ippc"]
             if workers > 1:
-                wproc, wport = start_ours(args.rounds, folder / "results-w.sqlite" if args.db else None, workers)
+                wproc, wport = start_ours(rddl, args.rounds, folder / "results-w.sqlite" if args.db else None, workers)
                 procs.append(wproc)
                 key = f"ippc-w{workers}"
                 servers[key] = (wport, wproc.pid)
@@ -434,7 +445,7 @@ def main() -> None:
             servers["canned"] = (eport, eproc.pid)
             if args.rddlsim_classpath:
                 rport = free_port()
-                jproc = start_rddlsim(args.rddlsim_classpath, args.rounds, rport, folder)
+                jproc = start_rddlsim(args.rddlsim_classpath, rddl, args.rounds, rport, folder)
                 procs.append(jproc)
                 servers["rddlsim"] = (rport, jproc.pid)
             for p, _ in servers.values():

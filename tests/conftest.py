@@ -1,4 +1,4 @@
-"""Shared fixtures: the recorded rddlsim material beside the checkout and the
+"""Shared fixtures: the recorded rddlsim and PROST sessions in tests/data and the
 rddlrepository corpus."""
 
 from __future__ import annotations
@@ -8,27 +8,26 @@ from pathlib import Path
 import pytest
 
 REPO = Path(__file__).resolve().parents[1]
-SHARED = REPO.parent / "shared"
-RDDLSIM_RDDL = SHARED / "rddlsim-transcripts" / "rddl"
+#: Every file the tests read lives here (see tests/data/README.md).
+DATA = REPO / "tests" / "data"
+RDDLSIM_RDDL = DATA / "rddlsim" / "rddl"
 
 
 @pytest.fixture(scope="session")
-def shared_dir() -> Path:
-    if not SHARED.is_dir():
-        pytest.skip(f"the shared folder is not beside the checkout ({SHARED})")
-    return SHARED
+def recordings() -> Path:
+    """tests/data: the recorded rddlsim sessions (rddlsim/) and PROST sessions (prost/)."""
+    return DATA
 
 
 @pytest.fixture(scope="session")
-def rddlsim_rddl(shared_dir: Path) -> Path:
-    return shared_dir / "rddlsim-transcripts" / "rddl"
+def rddlsim_rddl(recordings: Path) -> Path:
+    return recordings / "rddlsim" / "rddl"
 
 
-def corpus_root() -> Path | None:
-    try:
-        import rddlrepository
-    except ImportError:
-        return None
+def corpus_root() -> Path:
+    """The rddlrepository package's folder (a test dependency: pip install -e '.[test]')."""
+    import rddlrepository
+
     return Path(rddlrepository.__file__).parent
 
 
@@ -36,8 +35,6 @@ def corpus_pairs() -> list[tuple[Path, Path]]:
     """(domain.rddl, instanceN.rddl) for every instance of rddlrepository,
     paired by folder as the package itself pairs them."""
     root = corpus_root()
-    if root is None:
-        return []
     pairs = []
     for dom in sorted(root.rglob("domain.rddl")):
         for inst in sorted(dom.parent.glob("instance*.rddl")):

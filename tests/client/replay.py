@@ -1,5 +1,5 @@
 """A one-connection test server that replays the server side of a recorded
-rddlsim session (shared/rddlsim-transcripts) to our client.
+rddlsim session (tests/data/rddlsim) to our client.
 
 The script is the recorded s2c bytes in order: after each recorded c2s
 message, the server waits for one message from the client (any content:

@@ -23,7 +23,8 @@ from ippc.planners.base import Observation, Planner, SessionInfo, WireFluent
 
 from .loopback import DOMAINS, our_server, settled
 
-pytestmark = pytest.mark.trio
+# measures how a planner's time is spread over the steps: needs the machine to itself
+pytestmark = [pytest.mark.trio, pytest.mark.alone]
 
 ALLOWED = 1.0  # seconds: the server's --timeout, sent as time-allowed 1000.0
 HORIZON = 15  # corridor_enum

@@ -1,7 +1,7 @@
 """Our client against recorded rddlsim server behaviour.
 
 A small trio server (tests/client/replay.py) replays the server side of the
-recorded sessions in shared/rddlsim-transcripts: after each recorded client
+recorded sessions in tests/data/rddlsim: after each recorded client
 message it reads one message from our client (any content: our noop planner
 answers differently from the recorded clients) and sends the next recorded
 server bytes exactly, bare in no-header sessions. Our client must complete

@@ -4,7 +4,7 @@
 Standard library only (no ippc imports): it runs as a real subprocess. It
 takes PROST's command line and speaks the IPPC protocol exactly as PROST's
 ipc_client.cc does, byte for byte (checked against the recorded PROST
-sessions in shared/prost-transcripts):
+sessions in tests/data/prost):
 
 * session-request: XML declaration *without* a newline, `prost` as the
   client name, `<no-header/>`, a NUL;

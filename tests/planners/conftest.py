@@ -14,8 +14,8 @@ FAKE_PARSER = FAKES / "fake_rddl_parser.py"
 
 
 @pytest.fixture(scope="session")
-def prost_transcripts(shared_dir: Path) -> Path:
-    return shared_dir / "prost-transcripts"
+def prost_transcripts(recordings: Path) -> Path:
+    return recordings / "prost"
 
 
 @pytest.fixture

@@ -1,5 +1,5 @@
 """A tiny IPPC server for the PROST launcher tests: it replays the server
-side of a recorded PROST session (shared/prost-transcripts/*.jsonl.gz) on
+side of a recorded PROST session (tests/data/prost/*.jsonl.gz) on
 127.0.0.1 and checks that every client message equals the recorded one,
 byte for byte. One connection, bounded in time, standard library only."""
 

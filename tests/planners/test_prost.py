@@ -28,6 +28,9 @@ from ippc.planners.prost import check_config, prost_command
 from .conftest import FAKE_PARSER, FAKE_PROST
 from .prost_server import ReplayServer, load_recording, recorded_actions, short_session
 
+# PROST process groups, hangs, kills and grace periods: needs the machine to itself
+pytestmark = pytest.mark.alone
+
 INSTANCES = [
     "sysadmin_inst_mdp__1",
     "elevators_inst_mdp__1",

@@ -1,7 +1,7 @@
 """Loading the recorded sessions (rddlsim transcripts and PROST captures) for the tests.
 
 Scenario names are listed at import time (for parametrisation); the files themselves are
-opened through the ``shared_dir`` fixture of tests/conftest.py.
+opened through the ``recordings`` fixture of tests/conftest.py (tests/data).
 """
 
 from __future__ import annotations
@@ -14,16 +14,17 @@ from pathlib import Path
 
 from ippc.protocol import XML_DECLARATION
 
-_SHARED = Path(__file__).resolve().parents[2].parent / "shared"
-_TRANSCRIPTS = _SHARED / "rddlsim-transcripts" / "transcripts"
-_PROST = _SHARED / "prost-transcripts"
+_DATA = Path(__file__).resolve().parents[1] / "data"
+_TRANSCRIPTS = _DATA / "rddlsim" / "transcripts"
+_PROST = _DATA / "prost"
 
-#: Every rddlsim scenario (file stem), or [] when the shared folder is absent.
+#: Every rddlsim scenario (file stem).
 RDDLSIM_SCENARIOS: list[str] = sorted(p.stem for p in _TRANSCRIPTS.glob("*.jsonl"))
 #: Every PROST capture (instance name).
 PROST_INSTANCES: list[str] = sorted(
     p.name.removesuffix(".c2s.raw") for p in _PROST.glob("*.c2s.raw")
 )
+assert RDDLSIM_SCENARIOS and PROST_INSTANCES, f"the recordings are missing from {_DATA}"
 
 #: rddlsim scenarios whose messages are deliberately not well-formed or not decodable:
 #: (scenario, direction, index of the message within that direction) -> expected error text.
@@ -84,8 +85,8 @@ class Transcript:
 
 
 @functools.cache
-def load_transcript(shared_dir: Path, name: str) -> Transcript:
-    path = shared_dir / "rddlsim-transcripts" / "transcripts" / f"{name}.jsonl"
+def load_transcript(recordings: Path, name: str) -> Transcript:
+    path = recordings / "rddlsim" / "transcripts" / f"{name}.jsonl"
     meta: dict[str, object] = {}
     records: list[Record] = []
     with path.open(encoding="utf-8") as fh:
@@ -115,8 +116,8 @@ class ProstCapture:
 
 
 @functools.cache
-def load_prost(shared_dir: Path, name: str) -> ProstCapture:
-    base = shared_dir / "prost-transcripts"
+def load_prost(recordings: Path, name: str) -> ProstCapture:
+    base = recordings / "prost"
     with gzip.open(base / f"{name}.jsonl.gz", "rt", encoding="utf-8") as fh:
         messages = [(o["dir"], o["msg"].encode("latin-1")) for o in map(json.loads, fh)]
     with gzip.open(base / f"{name}.s2c.raw.gz", "rb") as fh:

@@ -38,9 +38,9 @@ SERVER_MESSAGES = (SessionInit, RoundInit, Turn, RoundEnd, SessionEnd, ResourceN
 
 @pytest.mark.parametrize("name", RDDLSIM_SCENARIOS)
 def test_every_rddlsim_message_decodes_and_server_bytes_reencode_exactly(
-    shared_dir: Path, name: str
+    recordings: Path, name: str
 ) -> None:
-    t = load_transcript(shared_dir, name)
+    t = load_transcript(recordings, name)
     checked = 0
     for direction, kinds in (("c2s", CLIENT_MESSAGES), ("s2c", SERVER_MESSAGES)):
         for idx, rec in enumerate(t.messages(direction)):
@@ -64,8 +64,8 @@ def test_every_rddlsim_message_decodes_and_server_bytes_reencode_exactly(
     assert all(idx < len(t.messages(d)) for (n, d, idx) in BROKEN if n == name)
 
 
-def test_no_header_session_has_bare_server_messages(shared_dir: Path) -> None:
-    t = load_transcript(shared_dir, "py_prost_style_noheader")
+def test_no_header_session_has_bare_server_messages(recordings: Path) -> None:
+    t = load_transcript(recordings, "py_prost_style_noheader")
     s2c = t.messages("s2c")
     assert s2c and all(not r.doc.startswith(b"<?xml") and not r.terminated for r in s2c)
     request = decode(t.messages("c2s")[0].doc)
@@ -74,24 +74,24 @@ def test_no_header_session_has_bare_server_messages(shared_dir: Path) -> None:
     assert decode(t.messages("c2s")[1].doc) == RoundRequest(True)
 
 
-def test_decoded_values_are_raw_text(shared_dir: Path) -> None:
-    t = load_transcript(shared_dir, "py_sysadmin_legal_variants")
+def test_decoded_values_are_raw_text(recordings: Path) -> None:
+    t = load_transcript(recordings, "py_sysadmin_legal_variants")
     actions = [decode(r.doc) for r in t.messages("c2s")[2:7]]
     assert actions[0] == Actions((Fluent("reboot", ("c1",), "true"),))
     assert actions[1] == Actions((Fluent("reboot", ("$c2",), "TRUE"),))
     assert actions[3] == Actions(())  # <actions></actions>
     assert actions[4] == Actions((Fluent("reboot", ("c5",), "true"),))  # pretty printed
-    sidewalk = load_transcript(shared_dir, "java_sidewalk")
+    sidewalk = load_transcript(recordings, "java_sidewalk")
     turn = decode(sidewalk.messages("s2c")[2].doc)
     assert isinstance(turn, Turn) and turn.fluents
     assert turn.fluents[0] == Fluent("yPos", ("p1",), "0")
-    rover = load_transcript(shared_dir, "java_mars_rover_simerror")
+    rover = load_transcript(recordings, "java_mars_rover_simerror")
     sent = decode(rover.messages("c2s")[2].doc)
     assert sent == Actions((Fluent("yMove", (), "0.9181647320338637"),))
 
 
-def test_pomdp_first_turn_has_no_observations(shared_dir: Path) -> None:
-    t = load_transcript(shared_dir, "java_sysadmin_pomdp")
+def test_pomdp_first_turn_has_no_observations(recordings: Path) -> None:
+    t = load_transcript(recordings, "java_sysadmin_pomdp")
     turns = [m for m in map(decode, (r.doc for r in t.messages("s2c"))) if isinstance(m, Turn)]
     firsts = [m for m in turns if m.turn_num == 1]
     assert len(firsts) == 2 and all(m.fluents is None for m in firsts)
@@ -101,11 +101,11 @@ def test_pomdp_first_turn_has_no_observations(shared_dir: Path) -> None:
     )
 
 
-def test_session_init_task_is_the_raw_rddl(shared_dir: Path) -> None:
-    t = load_transcript(shared_dir, "java_sysadmin_mdp")
+def test_session_init_task_is_the_raw_rddl(recordings: Path) -> None:
+    t = load_transcript(recordings, "java_sysadmin_mdp")
     init = decode(t.messages("s2c")[0].doc)
     assert isinstance(init, SessionInit)
-    rddl = shared_dir / "rddlsim-transcripts" / "rddl"
+    rddl = recordings / "rddlsim" / "rddl"
     expected = (
         (rddl / "sysadmin_mdp.rddl").read_bytes()
         + b"\n\n"
@@ -116,8 +116,8 @@ def test_session_init_task_is_the_raw_rddl(shared_dir: Path) -> None:
     assert (init.session_id, init.num_rounds, init.time_allowed) == (1, 2, 1080000.0)
 
 
-def test_round_end_and_session_end_fields(shared_dir: Path) -> None:
-    t = load_transcript(shared_dir, "py_session_timeout")
+def test_round_end_and_session_end_fields(recordings: Path) -> None:
+    t = load_transcript(recordings, "py_session_timeout")
     end, session_end = (decode(r.doc) for r in t.messages("s2c")[-2:])
     assert end == RoundEnd("sysadmin_inst_mdp__1", "pyclient", 0, 20.0, 2, -704, 10.0)
     assert session_end == SessionEnd("sysadmin_inst_mdp__1", 20.0, 1, "pyclient", 1, -712)
@@ -125,9 +125,9 @@ def test_round_end_and_session_end_fields(shared_dir: Path) -> None:
 
 @pytest.mark.parametrize("name", PROST_INSTANCES)
 def test_every_prost_message_decodes_and_server_bytes_reencode_exactly(
-    shared_dir: Path, name: str
+    recordings: Path, name: str
 ) -> None:
-    cap = load_prost(shared_dir, name)
+    cap = load_prost(recordings, name)
     kinds = {"c2s": CLIENT_MESSAGES, "s2c": SERVER_MESSAGES}
     counts = {"c2s": 0, "s2c": 0}
     for direction, data in cap.messages:

@@ -159,8 +159,8 @@ SERVER_OUTCOMES: dict[tuple[str, int], tuple[str, str]] = {
 
 
 @pytest.mark.parametrize("name", RDDLSIM_SCENARIOS)
-def test_server_replays_rddlsim_transcript(shared_dir: Path, name: str) -> None:
-    t = load_transcript(shared_dir, name)
+def test_server_replays_rddlsim_transcript(recordings: Path, name: str) -> None:
+    t = load_transcript(recordings, name)
     for conn_id, recs in t.conns().items():
         outcome, detail, events = replay_server(name, recs)
         expected = SERVER_OUTCOMES.get((name, conn_id), ("closed", "CLOSED"))
@@ -172,8 +172,8 @@ def test_server_replays_rddlsim_transcript(shared_dir: Path, name: str) -> None:
         assert events or outcome == "remote", conn_id
 
 
-def test_server_resource_request_replay_events(shared_dir: Path) -> None:
-    t = load_transcript(shared_dir, "py_resource_request")
+def test_server_resource_request_replay_events(recordings: Path) -> None:
+    t = load_transcript(recordings, "py_resource_request")
     _, _, events = replay_server("py_resource_request", t.records)
     kinds = [type(e).__name__ for e in events]
     assert kinds[:6] == [
@@ -271,8 +271,8 @@ CLIENT_OUTCOMES: dict[tuple[str, int], tuple[str, str]] = {
 
 
 @pytest.mark.parametrize("name", RDDLSIM_SCENARIOS)
-def test_client_replays_rddlsim_transcript(shared_dir: Path, name: str) -> None:
-    t = load_transcript(shared_dir, name)
+def test_client_replays_rddlsim_transcript(recordings: Path, name: str) -> None:
+    t = load_transcript(recordings, name)
     for conn_id, recs in t.conns().items():
         no_header = name == "py_prost_style_noheader" and conn_id == 0
         outcome = replay_client(name, recs, no_header=no_header, java=t.java_client)
@@ -285,8 +285,8 @@ def test_client_replays_rddlsim_transcript(shared_dir: Path, name: str) -> None:
 
 
 @pytest.mark.parametrize("name", PROST_INSTANCES)
-def test_server_replays_prost_session_byte_for_byte(shared_dir: Path, name: str) -> None:
-    cap = load_prost(shared_dir, name)
+def test_server_replays_prost_session_byte_for_byte(recordings: Path, name: str) -> None:
+    cap = load_prost(recordings, name)
     conn = ServerConnection()
     conn.receive_data(cap.c2s_raw)  # PROST's whole stream at once: it waits its turn
     conn.receive_data(b"")
@@ -302,8 +302,8 @@ def test_server_replays_prost_session_byte_for_byte(shared_dir: Path, name: str)
 
 
 @pytest.mark.parametrize("name", PROST_INSTANCES)
-def test_client_replays_prost_session(shared_dir: Path, name: str) -> None:
-    cap = load_prost(shared_dir, name)
+def test_client_replays_prost_session(recordings: Path, name: str) -> None:
+    cap = load_prost(recordings, name)
     conn = ClientConnection(no_header=True)
     conn.receive_data(cap.s2c_raw)
     conn.receive_data(b"")

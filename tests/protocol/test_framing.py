@@ -43,10 +43,10 @@ def feed_chunked(reader: MessageReader, data: bytes, sizes: Iterable[int]) -> li
     return out
 
 
-def streams(shared_dir: Path, name: str) -> list[tuple[str, bytes, list[bytes], bool]]:
+def streams(recordings: Path, name: str) -> list[tuple[str, bytes, list[bytes], bool]]:
     """(mode, stream bytes, expected messages, ends mid-message) per connection and
     direction of a transcript."""
-    t = load_transcript(shared_dir, name)
+    t = load_transcript(recordings, name)
     out = []
     for recs in t.conns().values():
         for direction in ("c2s", "s2c"):
@@ -79,50 +79,48 @@ def check_stream(
 
 
 @pytest.mark.parametrize("name", RDDLSIM_SCENARIOS)
-def test_rddlsim_streams_byte_by_byte(shared_dir: Path, name: str) -> None:
-    found = streams(shared_dir, name)
+def test_rddlsim_streams_byte_by_byte(recordings: Path, name: str) -> None:
+    found = streams(recordings, name)
     assert found
     for mode, data, expected, partial in found:
         check_stream(mode, data, expected, partial, [1])
 
 
-def test_no_header_transcript_is_read_in_bare_mode(shared_dir: Path) -> None:
-    modes = {mode for mode, *_ in streams(shared_dir, "py_prost_style_noheader")}
+def test_no_header_transcript_is_read_in_bare_mode(recordings: Path) -> None:
+    modes = {mode for mode, *_ in streams(recordings, "py_prost_style_noheader")}
     assert modes == {"nul", "bare"}
 
 
 @settings(max_examples=20, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(
-    name=st.sampled_from(RDDLSIM_SCENARIOS or ["-"]),
+    name=st.sampled_from(RDDLSIM_SCENARIOS),
     sizes=st.lists(st.integers(1, 2000), min_size=1, max_size=20),
 )
-def test_rddlsim_streams_in_random_chunks(shared_dir: Path, name: str, sizes: list[int]) -> None:
-    if name == "-":
-        pytest.skip("no transcripts")
-    for mode, data, expected, partial in streams(shared_dir, name):
+def test_rddlsim_streams_in_random_chunks(recordings: Path, name: str, sizes: list[int]) -> None:
+    for mode, data, expected, partial in streams(recordings, name):
         check_stream(mode, data, expected, partial, sizes)
 
 
 @pytest.mark.parametrize("name", PROST_INSTANCES)
-def test_prost_streams_in_big_chunks(shared_dir: Path, name: str) -> None:
-    cap = load_prost(shared_dir, name)
+def test_prost_streams_in_big_chunks(recordings: Path, name: str) -> None:
+    cap = load_prost(recordings, name)
     s2c = [m for d, m in cap.messages if d == "s2c"]
     c2s = [m[:-1] for d, m in cap.messages if d == "c2s"]
     assert feed_chunked(MessageReader("bare"), cap.s2c_raw, [4096, 7, 1, 100000]) == s2c
     assert feed_chunked(MessageReader("nul"), cap.c2s_raw, [4096, 3, 1]) == c2s
 
 
-def test_prost_s2c_stream_byte_by_byte(shared_dir: Path) -> None:
+def test_prost_s2c_stream_byte_by_byte(recordings: Path) -> None:
     # the smallest capture, whole; the others are covered by the slow test below
-    cap = load_prost(shared_dir, "sysadmin_inst_mdp__1")
+    cap = load_prost(recordings, "sysadmin_inst_mdp__1")
     s2c = [m for d, m in cap.messages if d == "s2c"]
     assert feed_chunked(MessageReader("bare"), cap.s2c_raw, [1]) == s2c
 
 
 @pytest.mark.slow
 @pytest.mark.parametrize("name", PROST_INSTANCES)
-def test_prost_streams_byte_by_byte(shared_dir: Path, name: str) -> None:
-    cap = load_prost(shared_dir, name)
+def test_prost_streams_byte_by_byte(recordings: Path, name: str) -> None:
+    cap = load_prost(recordings, name)
     s2c = [m for d, m in cap.messages if d == "s2c"]
     c2s = [m[:-1] for d, m in cap.messages if d == "c2s"]
     assert feed_chunked(MessageReader("bare"), cap.s2c_raw, [1]) == s2c
@@ -131,10 +129,8 @@ def test_prost_streams_byte_by_byte(shared_dir: Path, name: str) -> None:
 
 @settings(max_examples=10, deadline=None)
 @given(sizes=st.lists(st.integers(1, 5000), min_size=1, max_size=10))
-def test_prost_s2c_stream_in_random_chunks(shared_dir: Path, sizes: list[int]) -> None:
-    if not PROST_INSTANCES:
-        pytest.skip("no PROST captures")
-    cap = load_prost(shared_dir, "chromatic-dice_inst_mdp__01")
+def test_prost_s2c_stream_in_random_chunks(recordings: Path, sizes: list[int]) -> None:
+    cap = load_prost(recordings, "chromatic-dice_inst_mdp__01")
     s2c = [m for d, m in cap.messages if d == "s2c"][:40]
     stream = b"".join(s2c)
     assert cap.s2c_raw.startswith(stream)

@@ -7,7 +7,6 @@ from __future__ import annotations
 import dataclasses
 from pathlib import Path
 
-import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from ippc.protocol import (
@@ -296,11 +295,9 @@ def test_connections_raise_only_protocol_errors(data: bytes, sizes: list[int], r
 @settings(max_examples=100, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(st.data())
 def test_server_survives_a_real_session_with_garbage_spliced_in(
-    shared_dir: Path, data: st.DataObject
+    recordings: Path, data: st.DataObject
 ) -> None:
-    if not RDDLSIM_SCENARIOS:
-        pytest.skip("no transcripts")
-    t = load_transcript(shared_dir, data.draw(st.sampled_from(RDDLSIM_SCENARIOS)))
+    t = load_transcript(recordings, data.draw(st.sampled_from(RDDLSIM_SCENARIOS)))
     stream = b"".join(r.data or b"" for r in t.records if r.dir == "c2s" and r.conn == 0)
     garbage = data.draw(fuzz_bytes)
     cut = data.draw(st.integers(0, len(stream)))
@@ -315,12 +312,10 @@ def test_server_survives_a_real_session_with_garbage_spliced_in(
 @settings(max_examples=100, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(st.data())
 def test_client_survives_a_real_session_with_garbage_spliced_in(
-    shared_dir: Path, data: st.DataObject
+    recordings: Path, data: st.DataObject
 ) -> None:
-    if not RDDLSIM_SCENARIOS:
-        pytest.skip("no transcripts")
     name = data.draw(st.sampled_from(RDDLSIM_SCENARIOS))
-    t = load_transcript(shared_dir, name)
+    t = load_transcript(recordings, name)
     stream = b"".join(r.data or b"" for r in t.records if r.dir == "s2c" and r.conn == 0)
     garbage = data.draw(fuzz_bytes)
     cut = data.draw(st.integers(0, len(stream)))

@@ -66,12 +66,12 @@ RECORDED = [
 
 
 @pytest.mark.parametrize("scenario, instance", RECORDED)
-def test_agrees_with_rddlsim_recordings(shared_dir: Path, scenario: str, instance: str) -> None:
-    model = load(shared_dir / "rddlsim-transcripts" / "rddl")[instance]
+def test_agrees_with_rddlsim_recordings(recordings: Path, scenario: str, instance: str) -> None:
+    model = load(recordings / "rddlsim" / "rddl")[instance]
     sim = Simulator(model)
     rng = np.random.default_rng(7)
     state_fluents = {p.name: p for p in sim.state_fluents}
-    rounds = _episodes(shared_dir / "rddlsim-transcripts" / "transcripts" / f"{scenario}.jsonl")
+    rounds = _episodes(recordings / "rddlsim" / "transcripts" / f"{scenario}.jsonl")
     assert rounds
     checked = 0
     for turns in rounds:

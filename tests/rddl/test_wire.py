@@ -32,8 +32,8 @@ def test_java_string_hash_matches_java():
     assert java_string_hash("polygenelubricants") == -(2**31)
 
 
-def _recorded_turns(shared_dir: Path):
-    for f in sorted((shared_dir / "rddlsim-transcripts" / "transcripts").glob("*.jsonl")):
+def _recorded_turns(recordings: Path):
+    for f in sorted((recordings / "rddlsim" / "transcripts").glob("*.jsonl")):
         lines = [json.loads(x) for x in f.read_text().splitlines()]
         inst = lines[0]["meta"].get("instance")
         for rec in lines[1:]:
@@ -42,10 +42,10 @@ def _recorded_turns(shared_dir: Path):
                 yield f.stem, inst, data.rstrip("\0")
 
 
-def test_fluent_order_and_initial_values_match_every_recorded_turn(models, shared_dir):
+def test_fluent_order_and_initial_values_match_every_recorded_turn(models, recordings):
     codecs: dict[str, WireCodec] = {}
     checked = 0
-    for scenario, inst, doc in _recorded_turns(shared_dir):
+    for scenario, inst, doc in _recorded_turns(recordings):
         if inst not in codecs:
             codecs[inst] = WireCodec(Simulator(models[inst]))
         wc = codecs[inst]

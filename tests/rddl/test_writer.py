@@ -4,7 +4,6 @@ focused cases where parentheses or number spelling matter."""
 
 from __future__ import annotations
 
-import importlib.util
 import math
 from importlib import resources
 from pathlib import Path
@@ -21,8 +20,7 @@ from ippc.rddl import ast as A
 from ippc.rddl import parse, parse_expr, parse_file
 from ippc.rddl.writer import format_number, write, write_expr
 
-SHARED = Path(__file__).resolve().parents[2].parent / "shared"
-TRANSCRIPTS = SHARED / "rddlsim-transcripts"
+TRANSCRIPTS = Path(__file__).resolve().parents[1] / "data" / "rddlsim"
 
 
 # ------------------------------------------------------------- helpers
@@ -70,44 +68,15 @@ def _param(path: Path, root: Path) -> object:
 
 
 def _transcript_files() -> list[object]:
-    if not TRANSCRIPTS.is_dir():
-        return [
-            pytest.param(
-                None,
-                marks=pytest.mark.skip(reason=f"rddlsim transcripts not found at {TRANSCRIPTS}"),
-                id="no-transcripts",
-            )
-        ]
     files = sorted(TRANSCRIPTS.rglob("*.rddl"))
-    if not files:
-        return [
-            pytest.param(
-                None,
-                marks=pytest.mark.skip(reason=f"no .rddl files under {TRANSCRIPTS}"),
-                id="no-transcripts",
-            )
-        ]
+    assert files, f"no .rddl files under {TRANSCRIPTS}"
     return [_param(p, TRANSCRIPTS) for p in files]
 
 
-def _repository_root() -> Path | None:
-    if importlib.util.find_spec("rddlrepository") is None:
-        return None
-    return Path(str(resources.files("rddlrepository")))
-
-
 def _repository_files() -> list[object]:
-    root = _repository_root()
-    files = sorted(root.rglob("*.rddl")) if root is not None else []
-    if not files:
-        return [
-            pytest.param(
-                None,
-                marks=pytest.mark.skip(reason="the rddlrepository package is not installed"),
-                id="no-rddlrepository",
-            )
-        ]
-    assert root is not None
+    root = Path(str(resources.files("rddlrepository")))
+    files = sorted(root.rglob("*.rddl"))
+    assert files, f"no .rddl files under {root}"
     return [_param(p, root) for p in files]
 
 

@@ -19,10 +19,10 @@ from ippc.server.registry import Registry
 from ippc.server.session import Services
 from lxml import etree
 
-from ..conftest import SHARED
+from ..conftest import DATA
 
-TRANSCRIPTS = SHARED / "rddlsim-transcripts" / "transcripts"
-RDDL = SHARED / "rddlsim-transcripts" / "rddl"
+TRANSCRIPTS = DATA / "rddlsim" / "transcripts"
+RDDL = DATA / "rddlsim" / "rddl"
 DECL = b'<?xml version="1.0" encoding="UTF-8"?>\n'
 
 _registry: Registry | None = None

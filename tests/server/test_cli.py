@@ -10,9 +10,13 @@ import sys
 import time
 from pathlib import Path
 
+import pytest
 import trio
 
 from .harness import NOOP, RDDL, ROUND_REQUEST, RawClient, root_of, session_request
+
+# server processes, signals and kills with deadlines: needs the machine to itself
+pytestmark = pytest.mark.alone
 
 SERVER = [sys.executable, "-c", "from ippc.server.cli import main; main()"]
 

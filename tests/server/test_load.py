@@ -7,7 +7,8 @@ from ippc.server.config import ServerConfig
 
 from .harness import noop_session, noop_sessions_at_once, running_server
 
-pytestmark = pytest.mark.trio
+# many sessions at once: needs the machine to itself
+pytestmark = [pytest.mark.trio, pytest.mark.alone]
 
 CLIENTS = 200
 

@@ -151,8 +151,8 @@ def test_canonical_hostname_of_loopback() -> None:
 # ---------------------------------------------------------------- transcripts
 
 
-def shared_transcripts(shared_dir: Path) -> list[Path]:
-    paths = sorted((shared_dir / "rddlsim-transcripts" / "transcripts").glob("*.jsonl"))
+def shared_transcripts(recordings: Path) -> list[Path]:
+    paths = sorted((recordings / "rddlsim" / "transcripts").glob("*.jsonl"))
     assert len(paths) >= 30
     return paths
 
@@ -170,9 +170,9 @@ def rewrite(records: list[dict], writer: TranscriptWriter) -> None:
             raise AssertionError(f"unknown record {r}")
 
 
-def test_read_every_shared_transcript_and_write_it_back(shared_dir: Path, tmp_path: Path) -> None:
+def test_read_every_shared_transcript_and_write_it_back(recordings: Path, tmp_path: Path) -> None:
     renumbered = []
-    for path in shared_transcripts(shared_dir):
+    for path in shared_transcripts(recordings):
         meta, records = read_transcript(path)
         assert meta["server_args"][0] == "<dir>"
         assert records, path.name
@@ -195,9 +195,9 @@ def test_read_every_shared_transcript_and_write_it_back(shared_dir: Path, tmp_pa
     assert renumbered == ["java_client_early_round_end_deadlock.jsonl"]
 
 
-def test_shared_transcript_bytes_survive(shared_dir: Path) -> None:
+def test_shared_transcript_bytes_survive(recordings: Path) -> None:
     meta, records = read_transcript(
-        shared_dir / "rddlsim-transcripts" / "transcripts" / "java_sysadmin_mdp.jsonl")
+        recordings / "rddlsim" / "transcripts" / "java_sysadmin_mdp.jsonl")
     assert meta["scenario"] == "java_sysadmin_mdp"
     first = records[0]
     assert (first["i"], first["dir"]) == (0, "c2s")

@@ -401,6 +401,7 @@ def _open_each(paths: list[str], barrier: Any, failures: Any) -> None:
             failures.put(f"{path}: {err}")
 
 
+@pytest.mark.alone
 def test_processes_opening_a_new_file_at_once_all_succeed(tmp_path: Path) -> None:
     # rddl-server's workers and parallel batch runs may create one database at the
     # same moment; switching a new file to WAL then fails at once with "database is

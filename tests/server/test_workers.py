@@ -31,7 +31,11 @@ from .harness import (
 )
 from .test_cli import SERVER, start
 
-pytestmark = pytest.mark.skipif(supported() is not None, reason=str(supported()))
+# worker processes, kills and restarts with timeouts: needs the machine to itself
+pytestmark = [
+    pytest.mark.skipif(supported() is not None, reason=str(supported())),
+    pytest.mark.alone,
+]
 
 
 async def _until(cond: Callable[[], bool], what: str, timeout: float = 20.0) -> None:
