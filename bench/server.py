@@ -147,8 +147,15 @@ class NoopClients:
     docstring). `run()` plays them to the end and returns the turns played.
     With `hold`, every session stops at its first turn until `release()`."""
 
-    def __init__(self, port: int, n: int, *, name: str = "bench", hold: bool = False,
-                 canned: dict[str, bytes] | None = None):
+    def __init__(
+        self,
+        port: int,
+        n: int,
+        *,
+        name: str = "bench",
+        hold: bool = False,
+        canned: dict[str, bytes] | None = None,
+    ):
         self.conns: list[_Conn] = []
         self.hold = hold
         for i in range(n):
@@ -238,7 +245,9 @@ async def echo_server(canned_file: str) -> None:
     what trio and the kernel cost per turn, the floor under any trio server."""
     import trio
 
-    canned = {k: bytes.fromhex(v) + b"\0" for k, v in json.loads(Path(canned_file).read_text()).items()}
+    canned = {
+        k: bytes.fromhex(v) + b"\0" for k, v in json.loads(Path(canned_file).read_text()).items()
+    }
     rounds = int(re.search(rb"<num-rounds>(\d+)<", canned["session-init"]).group(1))  # type: ignore[union-attr]
 
     async def handler(stream: trio.SocketStream) -> None:
@@ -319,7 +328,9 @@ def bench_rddl(folder: Path) -> Path:
     """A folder holding SysAdmin's IPPC 2011 domain and instance 1 from rddlrepository."""
     from importlib import resources
 
-    source = Path(str(resources.files("rddlrepository"))) / "archive/competitions/IPPC2011/SysAdmin/MDP"
+    source = (
+        Path(str(resources.files("rddlrepository"))) / "archive/competitions/IPPC2011/SysAdmin/MDP"
+    )
     out = folder / "rddl"
     out.mkdir()
     for name in ("domain.rddl", "instance1.rddl"):
@@ -327,9 +338,24 @@ def bench_rddl(folder: Path) -> Path:
     return out
 
 
-def start_ours(rddl: Path, rounds: int, db: Path | None, workers: int = 1) -> tuple[subprocess.Popen[str], int]:
-    cmd = [sys.executable, "-c", "from ippc.server.cli import main; main()", str(rddl),
-           "--port", "0", "--rounds", str(rounds), "--timeout", "0", "-q", "--workers", str(workers)]
+def start_ours(
+    rddl: Path, rounds: int, db: Path | None, workers: int = 1
+) -> tuple[subprocess.Popen[str], int]:
+    cmd = [
+        sys.executable,
+        "-c",
+        "from ippc.server.cli import main; main()",
+        str(rddl),
+        "--port",
+        "0",
+        "--rounds",
+        str(rounds),
+        "--timeout",
+        "0",
+        "-q",
+        "--workers",
+        str(workers),
+    ]
     if db is not None:
         cmd += ["--db", str(db)]
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True)
@@ -344,16 +370,33 @@ def start_ours(rddl: Path, rounds: int, db: Path | None, workers: int = 1) -> tu
 def start_canned(canned: dict[str, bytes], folder: Path) -> tuple[subprocess.Popen[str], int]:
     canned_file = folder / "canned.json"
     canned_file.write_text(json.dumps({k: v.hex() for k, v in canned.items()}))
-    proc = subprocess.Popen([sys.executable, __file__, "--echo-server", str(canned_file)],
-                            stdout=subprocess.PIPE, text=True)
+    proc = subprocess.Popen(
+        [sys.executable, __file__, "--echo-server", str(canned_file)],
+        stdout=subprocess.PIPE,
+        text=True,
+    )
     assert proc.stdout is not None
     return proc, int(proc.stdout.readline().rsplit(":", 1)[1])
 
 
-def start_rddlsim(classpath: str, rddl: Path, rounds: int, port: int, cwd: Path) -> subprocess.Popen[bytes]:
+def start_rddlsim(
+    classpath: str, rddl: Path, rounds: int, port: int, cwd: Path
+) -> subprocess.Popen[bytes]:
     # rddlsim writes rddl-PORT.log into its working directory: a temporary one
     proc = subprocess.Popen(
-        ["java", "-Xmx1g", "-cp", classpath, "rddl.competition.Server", str(rddl), str(port), str(rounds), "0", "0", "0"],
+        [
+            "java",
+            "-Xmx1g",
+            "-cp",
+            classpath,
+            "rddl.competition.Server",
+            str(rddl),
+            str(port),
+            str(rounds),
+            "0",
+            "0",
+            "0",
+        ],
         stdout=subprocess.DEVNULL,
         stderr=subprocess.DEVNULL,
         cwd=cwd,
@@ -390,21 +433,35 @@ def stop(proc: subprocess.Popen[str] | subprocess.Popen[bytes] | None) -> None:
 
 def _row(server: str, n: int, runs: list[tuple[float, float, float, int]]) -> dict[str, object]:
     rates = [r for r, _, _, _ in runs]
-    return {"server": server, "clients": n, "turns": runs[-1][3], "runs": len(runs),
-            "turns_per_s": statistics.median(rates), "min": min(rates), "max": max(rates),
-            "server_cpu_us_per_turn": statistics.median(c for _, c, _, _ in runs),
-            "client_cpu_us_per_turn": statistics.median(c for _, _, c, _ in runs)}
+    return {
+        "server": server,
+        "clients": n,
+        "turns": runs[-1][3],
+        "runs": len(runs),
+        "turns_per_s": statistics.median(rates),
+        "min": min(rates),
+        "max": max(rates),
+        "server_cpu_us_per_turn": statistics.median(c for _, c, _, _ in runs),
+        "client_cpu_us_per_turn": statistics.median(c for _, _, c, _ in runs),
+    }
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     ap.add_argument("--clients", type=int, nargs="+", default=[1, 10, 50])
     ap.add_argument("--rounds", type=int, default=30)
     ap.add_argument("--repeat", type=int, default=5, help="runs of every measurement (median)")
-    ap.add_argument("--workers", default="auto",
-                    help="--workers of the second rddl-server measured (auto: one per core; 1: measure one server only)")
+    ap.add_argument(
+        "--workers",
+        default="auto",
+        help="--workers of the second rddl-server measured (auto: one per core; 1: measure one server only)",
+    )
     ap.add_argument("--memory-sessions", type=int, default=50)
-    ap.add_argument("--db", action="store_true", help="run our server with --db (SQLite in a temporary folder)")
+    ap.add_argument(
+        "--db", action="store_true", help="run our server with --db (SQLite in a temporary folder)"
+    )
     ap.add_argument("--rddlsim-classpath", default=os.environ.get("RDDLSIM_CP"))
     ap.add_argument("--json", action="store_true")
     ap.add_argument("--echo-server", metavar="CANNED", help=argparse.SUPPRESS)
@@ -435,7 +492,9 @@ def main() -> None:
             servers: dict[str, tuple[int, int]] = {"ippc": (port, proc.pid)}
             ours = ["ippc"]
             if workers > 1:
-                wproc, wport = start_ours(rddl, args.rounds, folder / "results-w.sqlite" if args.db else None, workers)
+                wproc, wport = start_ours(
+                    rddl, args.rounds, folder / "results-w.sqlite" if args.db else None, workers
+                )
                 procs.append(wproc)
                 key = f"ippc-w{workers}"
                 servers[key] = (wport, wproc.pid)
@@ -462,7 +521,13 @@ def main() -> None:
                         turns, secs = play(p, n)
                         cpu = cpu_seconds(pid) - cpu0
                         runs.setdefault((key, n), []).append(
-                            (turns / secs, 1e6 * cpu / turns, 1e6 * LAST_CLIENT_CPU[0] / turns, turns))
+                            (
+                                turns / secs,
+                                1e6 * cpu / turns,
+                                1e6 * LAST_CLIENT_CPU[0] / turns,
+                                turns,
+                            )
+                        )
             for key in servers:
                 rows.append(_row(key, 1, runs[key, 1]))
             for key in ours:
@@ -473,16 +538,35 @@ def main() -> None:
 
     ref = next((r["turns_per_s"] for r in rows if r["server"] == "rddlsim"), None)
     if args.json:
-        print(json.dumps({"rows": rows, "memory_kb_per_session": mem, "rddlsim_same_run": ref, "db": args.db,
-                          "workers": workers, "runs": {f"{k}/{n}": v for (k, n), v in runs.items()}}, indent=2))
+        print(
+            json.dumps(
+                {
+                    "rows": rows,
+                    "memory_kb_per_session": mem,
+                    "rddlsim_same_run": ref,
+                    "db": args.db,
+                    "workers": workers,
+                    "runs": {f"{k}/{n}": v for (k, n), v in runs.items()},
+                },
+                indent=2,
+            )
+        )
         return
-    print(f"workload: {INSTANCE}, {args.rounds} rounds x horizon 40 per session, noop raw client, loopback"
-          + (", ippc with --db" if args.db else ""))
-    print(f"median of {args.repeat} runs of each line, all lines taking turns in every pass (min-max in brackets)")
-    print("ippc = rddl-server --workers 1 (one process)"
-          + (f"; ippc-w{workers} = rddl-server --workers {workers}" if workers > 1 else "")
-          + "; canned = a trio server that answers with fixed bytes (no XML, no simulation)")
-    print(f"{'server':8} {'clients':>7} {'turns':>8} {'turns/s':>9} {'(min-max)':>13} {'cpu us/turn':>11} {'client cpu':>10}  ratio to rddlsim (1 client)")
+    print(
+        f"workload: {INSTANCE}, {args.rounds} rounds x horizon 40 per session, noop raw client, loopback"
+        + (", ippc with --db" if args.db else "")
+    )
+    print(
+        f"median of {args.repeat} runs of each line, all lines taking turns in every pass (min-max in brackets)"
+    )
+    print(
+        "ippc = rddl-server --workers 1 (one process)"
+        + (f"; ippc-w{workers} = rddl-server --workers {workers}" if workers > 1 else "")
+        + "; canned = a trio server that answers with fixed bytes (no XML, no simulation)"
+    )
+    print(
+        f"{'server':8} {'clients':>7} {'turns':>8} {'turns/s':>9} {'(min-max)':>13} {'cpu us/turn':>11} {'client cpu':>10}  ratio to rddlsim (1 client)"
+    )
     for r in rows:
         rate = float(r["turns_per_s"])  # type: ignore[arg-type]
         if ref:
@@ -491,34 +575,50 @@ def main() -> None:
             lo, hi = QUOTED_RDDLSIM
             ratio = f"{rate / hi:5.1f}x-{rate / lo:.1f}x (quoted 420-670/s, not this run)"
         spread = f"({r['min']:.0f}-{r['max']:.0f})"
-        print(f"{r['server']:8} {r['clients']:>7} {r['turns']:>8} {rate:>9.0f} {spread:>13} "
-              f"{float(r['server_cpu_us_per_turn']):11.0f} {float(r['client_cpu_us_per_turn']):10.0f}  {ratio}")  # type: ignore[arg-type]
+        print(
+            f"{r['server']:8} {r['clients']:>7} {r['turns']:>8} {rate:>9.0f} {spread:>13} "
+            f"{float(r['server_cpu_us_per_turn']):11.0f} {float(r['client_cpu_us_per_turn']):10.0f}  {ratio}"
+        )  # type: ignore[arg-type]
     if ("rddlsim", 1) in runs:
         # the same pass: seconds apart, so a change of the machine's speed
         # between passes cancels out
         for key in ours:
             pairs = [a[0] / b[0] for a, b in zip(runs[key, 1], runs["rddlsim", 1], strict=True)]
-            best = max(r for r, _, _, _ in runs[key, 1]) / max(r for r, _, _, _ in runs["rddlsim", 1])
-            print(f"{key}: one client, ratio to rddlsim within each pass: "
-                  + ", ".join(f"{x:.1f}" for x in pairs)
-                  + f"  (median {statistics.median(pairs):.1f}x; best run to best run {best:.1f}x)")
+            best = max(r for r, _, _, _ in runs[key, 1]) / max(
+                r for r, _, _, _ in runs["rddlsim", 1]
+            )
+            print(
+                f"{key}: one client, ratio to rddlsim within each pass: "
+                + ", ".join(f"{x:.1f}" for x in pairs)
+                + f"  (median {statistics.median(pairs):.1f}x; best run to best run {best:.1f}x)"
+            )
     for key in ours:
         line = [r for r in rows if r["server"] == key]
         if len(line) > 1:
             trend = " -> ".join(f"{r['turns_per_s']:.0f}" for r in line)
-            holds = all(float(b["turns_per_s"]) >= 0.9 * float(a["turns_per_s"])  # type: ignore[arg-type]
-                        for a, b in zip(line, line[1:], strict=False))
-            print(f"{key}: aggregate as clients are added: {trend}  ({'holds' if holds else 'FALLS'}, 10% noise allowed)")
+            holds = all(
+                float(b["turns_per_s"]) >= 0.9 * float(a["turns_per_s"])  # type: ignore[arg-type]
+                for a, b in zip(line, line[1:], strict=False)
+            )
+            print(
+                f"{key}: aggregate as clients are added: {trend}  ({'holds' if holds else 'FALLS'}, 10% noise allowed)"
+            )
     # the canned server does no work: its rate is what this host's loopback
     # and wake-ups allow any server in the same pass
     for key in ours:
         share = [a[0] / b[0] for a, b in zip(runs[key, 1], runs["canned", 1], strict=True)]
-        print(f"{key}: one client, share of the canned-reply server's rate within each pass: "
-              + ", ".join(f"{x:.2f}" for x in share))
+        print(
+            f"{key}: one client, share of the canned-reply server's rate within each pass: "
+            + ", ".join(f"{x:.2f}" for x in share)
+        )
     floor = next(float(r["turns_per_s"]) for r in rows if r["server"] == "canned")  # type: ignore[arg-type]
     first = next(float(r["turns_per_s"]) for r in rows if r["server"] == "ippc")  # type: ignore[arg-type]
-    print(f"one client: {first / floor:.2f} of the canned-reply server's rate ({floor:.0f} turns/s)")
-    print(f"memory per open session: {mem:.1f} KiB ({args.memory_sessions} sessions held at their first turn)")
+    print(
+        f"one client: {first / floor:.2f} of the canned-reply server's rate ({floor:.0f} turns/s)"
+    )
+    print(
+        f"memory per open session: {mem:.1f} KiB ({args.memory_sessions} sessions held at their first turn)"
+    )
 
 
 if __name__ == "__main__":

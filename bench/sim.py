@@ -375,7 +375,10 @@ def print_table(rows: list[Row], args: argparse.Namespace, elapsed: float) -> No
     print()
     print("goals:")
     print("  1. " + goal_line(rows, "ratio", GOAL_RATIO, "single-state steps/s, ours/pyRDDLGym"))
-    print("  2. " + goal_line(rows, "batch_ratio", GOAL_BATCH, "batched states/s / our single-state steps/s"))
+    print(
+        "  2. "
+        + goal_line(rows, "batch_ratio", GOAL_BATCH, "batched states/s / our single-state steps/s")
+    )
     builds = [r.build_ratio for r in rows if r.build_ratio is not None]
     line = "  3. build time, ours/pyRDDLGym: printed (no goal)"
     if builds:

@@ -27,17 +27,66 @@ def _options(pairs: tuple[str, ...]) -> dict[str, str]:
 @click.command(context_settings={"help_option_names": ["-h", "--help"]})
 @click.option("--host", default="127.0.0.1", show_default=True)
 @click.option("--port", default=2323, show_default=True)
-@click.option("--instance", required=True, help="Instance name (the session-request's problem-name).")
-@click.option("--planner", default="noop", show_default=True, help="noop, random, prost, or any registered planner.")
-@click.option("--name", "client_name", default=None, help="Client name sent to the server (default: the planner's name).")
-@click.option("--planner-option", "planner_options", multiple=True, metavar="KEY=VALUE", help="Planner option; repeatable.")
-@click.option("--rounds-training", default=0, show_default=True, help="Practice rounds first (execute-policy no; counted only by a server in monitor-execution mode).")
-@click.option("--no-header", is_flag=True, help="Ask for rddlsim's no-header mode (bare XML from the server, as PROST asks).")
-@click.option("--rddl", "rddl_paths", multiple=True, type=click.Path(exists=True, path_type=Path), help="Load the model from these files/folders instead of the server's task.")
+@click.option(
+    "--instance", required=True, help="Instance name (the session-request's problem-name)."
+)
+@click.option(
+    "--planner",
+    default="noop",
+    show_default=True,
+    help="noop, random, prost, or any registered planner.",
+)
+@click.option(
+    "--name",
+    "client_name",
+    default=None,
+    help="Client name sent to the server (default: the planner's name).",
+)
+@click.option(
+    "--planner-option",
+    "planner_options",
+    multiple=True,
+    metavar="KEY=VALUE",
+    help="Planner option; repeatable.",
+)
+@click.option(
+    "--rounds-training",
+    default=0,
+    show_default=True,
+    help="Practice rounds first (execute-policy no; counted only by a server in monitor-execution mode).",
+)
+@click.option(
+    "--no-header",
+    is_flag=True,
+    help="Ask for rddlsim's no-header mode (bare XML from the server, as PROST asks).",
+)
+@click.option(
+    "--rddl",
+    "rddl_paths",
+    multiple=True,
+    type=click.Path(exists=True, path_type=Path),
+    help="Load the model from these files/folders instead of the server's task.",
+)
 @click.option("--seed", type=int, default=None, help="Seed for the planner.")
-@click.option("--json-out", type=click.Path(dir_okay=False, path_type=Path), help="Write the results as JSON here.")
-@click.option("--timeout", type=float, default=600.0, show_default=True, help="Seconds to wait for any server message (and for an external planner's whole session).")
-@click.option("--prost", "prost_bin", type=click.Path(path_type=Path), default=None, help="PROST's search binary (else $PROST_BIN).")
+@click.option(
+    "--json-out",
+    type=click.Path(dir_okay=False, path_type=Path),
+    help="Write the results as JSON here.",
+)
+@click.option(
+    "--timeout",
+    type=float,
+    default=600.0,
+    show_default=True,
+    help="Seconds to wait for any server message (and for an external planner's whole session).",
+)
+@click.option(
+    "--prost",
+    "prost_bin",
+    type=click.Path(path_type=Path),
+    default=None,
+    help="PROST's search binary (else $PROST_BIN).",
+)
 @click.option("-q", "--quiet", is_flag=True)
 def main(
     host: str,
@@ -57,7 +106,11 @@ def main(
 ) -> None:
     """Play one session of INSTANCE on an IPPC server (ours, rddlsim, or a
     robot's dispatcher) with a planner, and print the round rewards."""
-    logging.basicConfig(level=logging.WARNING if quiet else logging.INFO, format="%(levelname)s %(name)s: %(message)s", stream=sys.stderr)
+    logging.basicConfig(
+        level=logging.WARNING if quiet else logging.INFO,
+        format="%(levelname)s %(name)s: %(message)s",
+        stream=sys.stderr,
+    )
     options = _options(planner_options)
     try:
         declared = find_planner(planner).options
@@ -77,12 +130,22 @@ def main(
     name = client_name or planner
 
     if isinstance(agent, ExternalPlanner):
-        res = agent.run_session(host=host, port=port, instance=instance, client_name=client_name, timeout=timeout, log_path=None)
+        res = agent.run_session(
+            host=host,
+            port=port,
+            instance=instance,
+            client_name=client_name,
+            timeout=timeout,
+            log_path=None,
+        )
         for i, r in enumerate(res.rounds, 1):
             click.echo(f"round {i:3d}  reward {r:12.4f}")
         click.echo(f"total reward {res.total_reward}  ({res.seconds:.1f} s, log {res.log_path})")
         if json_out is not None:
-            rounds = [{"round": i, "reward": r, "turns": None, "seconds": None, "training": False} for i, r in enumerate(res.rounds, 1)]
+            rounds = [
+                {"round": i, "reward": r, "turns": None, "seconds": None, "training": False}
+                for i, r in enumerate(res.rounds, 1)
+            ]
             data = {
                 "instance": instance,
                 "planner": planner,
@@ -121,9 +184,13 @@ def main(
 
 
 def print_result(result: SessionResult) -> None:
-    click.echo(f"{result.instance}  planner {result.planner}  client {result.client_name}  session {result.session_id}")
+    click.echo(
+        f"{result.instance}  planner {result.planner}  client {result.client_name}  session {result.session_id}"
+    )
     click.echo(f"{'round':>5}  {'reward':>12}  {'turns':>5}  {'seconds':>8}")
     for r in result.rounds:
         mark = "  training" if r.training else ("  (ended early)" if r.ended_early else "")
         click.echo(f"{r.round:>5}  {r.reward:>12.4f}  {r.turns:>5}  {r.seconds:>8.3f}{mark}")
-    click.echo(f"total reward {result.total_reward}  mean round reward {result.mean_round_reward:.4f}  ({result.seconds:.2f} s)")
+    click.echo(
+        f"total reward {result.total_reward}  mean round reward {result.mean_round_reward:.4f}  ({result.seconds:.2f} s)"
+    )

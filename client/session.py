@@ -115,18 +115,24 @@ class _Link:
         try:
             await self.stream.send_all(self.conn.send(msg))
         except (trio.BrokenResourceError, trio.ClosedResourceError, OSError) as err:
-            raise ClientError(f"the server closed the connection while we sent {type(msg).__name__}: {err}") from None
+            raise ClientError(
+                f"the server closed the connection while we sent {type(msg).__name__}: {err}"
+            ) from None
 
     async def receive(self, waiting_for: str) -> Any:
         while True:
             try:
                 event = self.conn.next_event()
             except ProtocolError as err:
-                raise ClientError(f"bad message from the server while waiting for {waiting_for}: {err}") from None
+                raise ClientError(
+                    f"bad message from the server while waiting for {waiting_for}: {err}"
+                ) from None
             if event is not NEED_DATA:
                 self.pending = 0
                 if isinstance(event, ConnectionClosed):
-                    raise ClientError(f"the server closed the connection while we waited for {waiting_for}")
+                    raise ClientError(
+                        f"the server closed the connection while we waited for {waiting_for}"
+                    )
                 return event
             try:
                 if self.timeout is not None:
@@ -146,26 +152,36 @@ class _Link:
                     f"no answer from the server for {self.timeout:g} s while waiting for {waiting_for}{hint}"
                 ) from None
             except (trio.BrokenResourceError, trio.ClosedResourceError, OSError) as err:
-                raise ClientError(f"connection lost while waiting for {waiting_for}: {err}") from None
+                raise ClientError(
+                    f"connection lost while waiting for {waiting_for}: {err}"
+                ) from None
             self.pending += len(data)
             self.conn.receive_data(data)
 
 
-def _typed(codec: WireCodec, fluents: tuple[Fluent, ...]) -> dict[tuple[str, tuple[str, ...]], Value]:
+def _typed(
+    codec: WireCodec, fluents: tuple[Fluent, ...]
+) -> dict[tuple[str, tuple[str, ...]], Value]:
     model = codec.model
     out: dict[tuple[str, tuple[str, ...]], Value] = {}
     for f in fluents:
         p = model.pvariables.get(f.name)
         if p is None:
-            raise ClientError(f"the server sent fluent {f.name!r}, which {model.name} does not declare")
+            raise ClientError(
+                f"the server sent fluent {f.name!r}, which {model.name} does not declare"
+            )
         try:
             out[(f.name, tuple(f.args))] = parse_value(str(f.value), value_kind(model, p))
         except ValueError:
-            raise ClientError(f"the server sent {f.name}({','.join(f.args)}) = {f.value!r}, not a {p.range}") from None
+            raise ClientError(
+                f"the server sent {f.name}({','.join(f.args)}) = {f.value!r}, not a {p.range}"
+            ) from None
     return out
 
 
-async def run_session(config: ClientConfig, planner: Planner, planner_name: str = "") -> SessionResult:
+async def run_session(
+    config: ClientConfig, planner: Planner, planner_name: str = ""
+) -> SessionResult:
     """Connect, play every round with `planner`, return the results."""
     started = time.monotonic()
     try:
@@ -175,7 +191,13 @@ async def run_session(config: ClientConfig, planner: Planner, planner_name: str 
         raise ClientError(f"cannot connect to {config.host}:{config.port}: {err}") from None
     async with stream:
         link = _Link(stream, ClientConnection(no_header=config.no_header), config.timeout)
-        await link.send(SessionRequest(problem_name=config.instance, client_name=config.client_name, no_header=config.no_header))
+        await link.send(
+            SessionRequest(
+                problem_name=config.instance,
+                client_name=config.client_name,
+                no_header=config.no_header,
+            )
+        )
         init = await link.receive("session-init")
         if not isinstance(init, SessionInit):
             raise ClientError(f"expected session-init, got {type(init).__name__}")
@@ -190,9 +212,23 @@ async def run_session(config: ClientConfig, planner: Planner, planner_name: str 
         codec = WireCodec(sim)
         allowed_s = init.time_allowed / 1000.0
         planner.start_session(
-            SessionInfo(instance=config.instance, model=model, simulator=sim, rounds=init.num_rounds, time_allowed=allowed_s, seed=config.seed)
+            SessionInfo(
+                instance=config.instance,
+                model=model,
+                simulator=sim,
+                rounds=init.num_rounds,
+                time_allowed=allowed_s,
+                seed=config.seed,
+            )
         )
-        result = SessionResult(config.instance, planner_name or type(planner).__name__, config.client_name, 0.0, 0.0, session_id=init.session_id)
+        result = SessionResult(
+            config.instance,
+            planner_name or type(planner).__name__,
+            config.client_name,
+            0.0,
+            0.0,
+            session_id=init.session_id,
+        )
         horizon = model.horizon or 0
         plan = [True] * config.rounds_training + [False] * init.num_rounds
         total: float | None = None
@@ -217,9 +253,17 @@ async def run_session(config: ClientConfig, planner: Planner, planner_name: str 
             if not training:
                 counted += 1
             rounds_left = len(plan) - index
-            rnd = await _play_round(link, planner, codec, event, training, horizon, rounds_left, started, allowed_s)
+            rnd = await _play_round(
+                link, planner, codec, event, training, horizon, rounds_left, started, allowed_s
+            )
             result.rounds.append(rnd)
-            log.info("round %d: reward %s in %d turns%s", rnd.round, rnd.reward, rnd.turns, " (training)" if training else "")
+            log.info(
+                "round %d: reward %s in %d turns%s",
+                rnd.round,
+                rnd.reward,
+                rnd.turns,
+                " (training)" if training else "",
+            )
         if total is None:
             event = await link.receive("session-end")
             if not isinstance(event, SessionEnd):
@@ -250,9 +294,20 @@ async def _play_round(
     while True:
         event = await link.receive("a turn or round-end")
         if isinstance(event, RoundEnd):
-            ended_early = None if (horizon and event.turns_used >= horizon) else "the server ended the round early"
+            ended_early = (
+                None
+                if (horizon and event.turns_used >= horizon)
+                else "the server ended the round early"
+            )
             planner.end_round(event.round_reward)
-            return RoundResult(init.round_num, event.round_reward, event.turns_used, time.monotonic() - t0, training, ended_early)
+            return RoundResult(
+                init.round_num,
+                event.round_reward,
+                event.turns_used,
+                time.monotonic() - t0,
+                training,
+                ended_early,
+            )
         if not isinstance(event, Turn):
             raise ClientError(f"expected a turn, got {type(event).__name__}")
         turns += 1

@@ -371,7 +371,9 @@ def find_planner(name: str) -> type[Planner] | type[ExternalPlanner]:
         try:
             obj = _load_target(target)
         except Exception as err:
-            raise PlannerError(f"built-in planner '{name}' ({target}) cannot be loaded: {err}") from err
+            raise PlannerError(
+                f"built-in planner '{name}' ({target}) cannot be loaded: {err}"
+            ) from err
         return _check_planner_class(name, target, obj)
     raise PlannerError(f"unknown planner '{name}' (known planners: {', '.join(planner_names())})")
 

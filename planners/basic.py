@@ -41,8 +41,7 @@ class RandomPlanner(Planner):
 
     name: ClassVar[str] = "random"
     options: ClassVar[dict[str, str]] = {
-        "seed": "integer seed for the random choices (default: the client's --seed, "
-        "else unseeded)",
+        "seed": "integer seed for the random choices (default: the client's --seed, else unseeded)",
     }
 
     def __init__(self, **options: str) -> None:

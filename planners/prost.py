@@ -296,7 +296,9 @@ class ProstPlanner(ExternalPlanner):
         timeout (seconds) passes or `cancel()` is called; PROST's whole
         process group is gone when this returns or raises."""
         if client_name not in (None, "prost"):
-            log.warning("PROST always names itself 'prost' in its session request, not %r", client_name)
+            log.warning(
+                "PROST always names itself 'prost' in its session request, not %r", client_name
+            )
         path = log_path or self.log_file
         if path is None:
             fd, name = tempfile.mkstemp(prefix=f"prost-{_safe(instance)}-", suffix=".log")
@@ -342,7 +344,9 @@ class ProstPlanner(ExternalPlanner):
             self._cancelled.clear()
         return self._result(proc.returncode, stopped, timeout, seconds, path)
 
-    def _wait(self, proc: subprocess.Popen[bytes], start: float, timeout: float | None) -> str | None:
+    def _wait(
+        self, proc: subprocess.Popen[bytes], start: float, timeout: float | None
+    ) -> str | None:
         """Block until PROST exits (None), the timeout passes ('timeout') or
         cancel() is called ('cancelled'), without reaping PROST."""
         deadline = None if timeout is None else start + timeout
@@ -370,14 +374,24 @@ class ProstPlanner(ExternalPlanner):
         # busy machine may be after killpg returns: wait (bounded) until no member
         # is left alive, so that none outlives this call.
         if not _poll_until(lambda: not others(), _KILL_WAIT):
-            log.error("PROST's process group %d: %s still alive %g s after SIGKILL", pgid, others(), _KILL_WAIT)
+            log.error(
+                "PROST's process group %d: %s still alive %g s after SIGKILL",
+                pgid,
+                others(),
+                _KILL_WAIT,
+            )
         try:
             proc.wait(timeout=10)
         except subprocess.TimeoutExpired:
             log.error("PROST (pid %d) did not die after SIGKILL", proc.pid)
 
     def _result(
-        self, code: int | None, stopped: str | None, timeout: float | None, seconds: float, path: Path
+        self,
+        code: int | None,
+        stopped: str | None,
+        timeout: float | None,
+        seconds: float,
+        path: Path,
     ) -> ExternalResult:
         try:
             text = path.read_text(errors="replace")
@@ -388,7 +402,9 @@ class ProstPlanner(ExternalPlanner):
         exit_code = code if code is not None else -int(signal.SIGKILL)
         problems: list[str] = []
         if stopped == "timeout":
-            problems.append(f"PROST did not finish within {timeout:g} s; its process group was killed")
+            problems.append(
+                f"PROST did not finish within {timeout:g} s; its process group was killed"
+            )
         elif stopped == "cancelled":
             problems.append("PROST was stopped before it finished (cancelled)")
         if out.errors:
@@ -406,7 +422,10 @@ class ProstPlanner(ExternalPlanner):
             log.error("%s", error)
         else:
             log.info(
-                "PROST finished in %.1f s: %d rounds, total reward %s", seconds, len(out.rounds), out.total_reward
+                "PROST finished in %.1f s: %d rounds, total reward %s",
+                seconds,
+                len(out.rounds),
+                out.total_reward,
             )
         return ExternalResult(
             exit_code=exit_code,

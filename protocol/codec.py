@@ -547,8 +547,14 @@ _COMMON: Final[dict[bytes, Message]] = {
         (b"<actions></actions>", Actions()),
         (b"<round-request/>", RoundRequest()),
         (b"<round-request></round-request>", RoundRequest()),
-        (b"<round-request><execute-policy>yes</execute-policy></round-request>", RoundRequest(execute_policy=True)),
-        (b"<round-request> <execute-policy>yes</execute-policy> </round-request>", RoundRequest(execute_policy=True)),
+        (
+            b"<round-request><execute-policy>yes</execute-policy></round-request>",
+            RoundRequest(execute_policy=True),
+        ),
+        (
+            b"<round-request> <execute-policy>yes</execute-policy> </round-request>",
+            RoundRequest(execute_policy=True),
+        ),
         (b"<resource-request/>", ResourceRequest()),
     )
 }

@@ -399,8 +399,9 @@ class ServerConnection(_Connection[ServerState]):
         target = self._send_target(Turn)
         try:
             if self.no_header:
-                wire = encode_turn(turn_num, time_left, immediate_reward, fluents_xml,
-                                   declaration=False)
+                wire = encode_turn(
+                    turn_num, time_left, immediate_reward, fluents_xml, declaration=False
+                )
             else:
                 wire = encode_turn(turn_num, time_left, immediate_reward, fluents_xml) + b"\0"
         except LocalProtocolError:

@@ -257,11 +257,7 @@ Expr = (
 
 # A constant in a default, non-fluents or init-state value: a Const, an
 # EnumLit, or an ObjectLit (a bare object name is an ObjectLit too).
-Literal = (
-    Const
-    | EnumLit
-    | ObjectLit
-)
+Literal = Const | EnumLit | ObjectLit
 
 
 # ---------------------------------------------------------------- domain

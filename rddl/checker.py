@@ -44,10 +44,30 @@ AGGREGATIONS = {"sum", "prod", "avg", "min", "max", "forall", "exists", "argmax"
 
 # name -> (min args, max args, result): result "real", "int", "same" (join of args)
 FUNCTIONS: dict[str, tuple[int, int, str]] = {
-    **{f: (1, 1, "real") for f in (
-        "exp", "ln", "sqrt", "cos", "sin", "tan", "acos", "asin", "atan", "cosh", "sinh",
-        "tanh", "lngamma", "gamma", "digamma", "erf", "erfc", "logit", "sigmoid",
-    )},
+    **{
+        f: (1, 1, "real")
+        for f in (
+            "exp",
+            "ln",
+            "sqrt",
+            "cos",
+            "sin",
+            "tan",
+            "acos",
+            "asin",
+            "atan",
+            "cosh",
+            "sinh",
+            "tanh",
+            "lngamma",
+            "gamma",
+            "digamma",
+            "erf",
+            "erfc",
+            "logit",
+            "sigmoid",
+        )
+    },
     **{f: (1, 1, "int") for f in ("floor", "ceil", "round", "sgn", "sign")},
     "abs": (1, 1, "same"),
     "min": (2, 2, "same"),
@@ -143,14 +163,20 @@ def check_domain(domain: A.Domain, texts: dict[str, str] | None = None) -> Domai
             seen: set[str] = set()
             for v in td.values:
                 if v in seen:
-                    rep.error(td.loc, "duplicate-definition", f"enum value '{v}' appears twice in type '{td.name}'")
+                    rep.error(
+                        td.loc,
+                        "duplicate-definition",
+                        f"enum value '{v}' appears twice in type '{td.name}'",
+                    )
                 seen.add(v)
                 enum_values.setdefault(v, []).append(td.name)
     for td in domain.types:
         if td.kind == "sub" and td.parent is not None:
             parent = types.get(td.parent)
             if parent is None:
-                rep.error(td.loc, "unknown-type", f"type '{td.name}' extends unknown type '{td.parent}'")
+                rep.error(
+                    td.loc, "unknown-type", f"type '{td.name}' extends unknown type '{td.parent}'"
+                )
             elif parent.kind == "enum":
                 rep.error(td.loc, "type", f"type '{td.name}' cannot extend enum type '{td.parent}'")
     _check_type_cycles(types, rep)
@@ -158,26 +184,44 @@ def check_domain(domain: A.Domain, texts: dict[str, str] | None = None) -> Domai
     pvars: dict[str, PVariable] = {}
     for pd in domain.pvariables:
         if pd.name in pvars:
-            rep.error(pd.loc, "duplicate-definition", f"pvariable '{pd.name}' is defined twice (first at line {pvars[pd.name].loc.line})")
+            rep.error(
+                pd.loc,
+                "duplicate-definition",
+                f"pvariable '{pd.name}' is defined twice (first at line {pvars[pd.name].loc.line})",
+            )
             continue
         for ptype in pd.params:
             if ptype not in types:
                 if ptype in PRIMITIVE_TYPES:
-                    rep.error(pd.loc, "type", f"parameter of '{pd.name}' has type '{ptype}'; parameters must be object or enum types")
+                    rep.error(
+                        pd.loc,
+                        "type",
+                        f"parameter of '{pd.name}' has type '{ptype}'; parameters must be object or enum types",
+                    )
                 else:
-                    rep.error(pd.loc, "unknown-type", f"parameter of '{pd.name}' has unknown type '{ptype}'")
+                    rep.error(
+                        pd.loc,
+                        "unknown-type",
+                        f"parameter of '{pd.name}' has unknown type '{ptype}'",
+                    )
         if pd.range not in PRIMITIVE_TYPES and pd.range not in types:
             rep.error(pd.loc, "unknown-type", f"'{pd.name}' has unknown range type '{pd.range}'")
         default = None
         if pd.default is not None:
-            default = _literal_value(pd.default, pd.range, types, enum_values, None, rep, f"default of '{pd.name}'")
+            default = _literal_value(
+                pd.default, pd.range, types, enum_values, None, rep, f"default of '{pd.name}'"
+            )
         level = None
         if pd.level is not None:
             lv = pd.level
             if isinstance(lv, A.Const) and type(lv.value) is int and lv.value >= 0:
                 level = lv.value
             else:
-                rep.error(pd.level.loc if pd.level.loc.line else pd.loc, "type", f"level of '{pd.name}' must be a non-negative integer")
+                rep.error(
+                    pd.level.loc if pd.level.loc.line else pd.loc,
+                    "type",
+                    f"level of '{pd.name}' must be a non-negative integer",
+                )
         pvars[pd.name] = PVariable(pd.name, pd.kind, pd.params, pd.range, default, level, pd.loc)
 
     cpfs: dict[str, A.Cpf] = {}
@@ -185,22 +229,42 @@ def check_domain(domain: A.Domain, texts: dict[str, str] | None = None) -> Domai
         target = pvars.get(cpf.name)
         shown = cpf.name + ("'" if cpf.primed else "")
         if cpf.name in cpfs:
-            rep.error(cpf.loc, "duplicate-definition", f"'{shown}' has two cpfs (first at line {cpfs[cpf.name].loc.line})")
+            rep.error(
+                cpf.loc,
+                "duplicate-definition",
+                f"'{shown}' has two cpfs (first at line {cpfs[cpf.name].loc.line})",
+            )
             continue
         cpfs[cpf.name] = cpf
         if target is None:
             rep.error(cpf.loc, "unknown-name", f"cpf for undeclared pvariable '{shown}'")
             continue
         if target.kind in (NON_FLUENT, ACTION):
-            rep.error(cpf.loc, "bad-cpf", f"'{cpf.name}' is {_a(target.kind)} and cannot have a cpf")
+            rep.error(
+                cpf.loc, "bad-cpf", f"'{cpf.name}' is {_a(target.kind)} and cannot have a cpf"
+            )
         elif target.kind == STATE and not cpf.primed:
-            rep.error(cpf.loc, "bad-cpf", f"the cpf of state fluent '{cpf.name}' must be written {cpf.name}'")
+            rep.error(
+                cpf.loc,
+                "bad-cpf",
+                f"the cpf of state fluent '{cpf.name}' must be written {cpf.name}'",
+            )
         elif target.kind != STATE and cpf.primed:
-            rep.error(cpf.loc, "bad-cpf", f"only state fluents are primed; '{cpf.name}' is {_a(target.kind)}")
+            rep.error(
+                cpf.loc,
+                "bad-cpf",
+                f"only state fluents are primed; '{cpf.name}' is {_a(target.kind)}",
+            )
         if len(cpf.params) != target.arity:
-            rep.error(cpf.loc, "arity", f"'{cpf.name}' takes {target.arity} parameter(s), its cpf has {len(cpf.params)}")
+            rep.error(
+                cpf.loc,
+                "arity",
+                f"'{cpf.name}' takes {target.arity} parameter(s), its cpf has {len(cpf.params)}",
+            )
         if len(set(cpf.params)) != len(cpf.params):
-            rep.error(cpf.loc, "duplicate-definition", f"the cpf of '{cpf.name}' repeats a parameter")
+            rep.error(
+                cpf.loc, "duplicate-definition", f"the cpf of '{cpf.name}' repeats a parameter"
+            )
     for p in pvars.values():
         if p.kind in (STATE, INTERM, DERIVED, OBSERV) and p.name not in cpfs:
             shown = p.name + ("'" if p.kind == STATE else "")
@@ -285,7 +349,11 @@ def _literal_value(
             rep.error(lit.loc, "type", f"{what} is {kind} '{lit.name}' but the range is '{rng}'")
             return None
         if lit.name not in td.values:
-            rep.error(lit.loc, "type", f"'{lit.name}' is not a value of enum type '{rng}' ({', '.join(td.values)})")
+            rep.error(
+                lit.loc,
+                "type",
+                f"'{lit.name}' is not a value of enum type '{rng}' ({', '.join(td.values)})",
+            )
             return None
         return lit.name
     # ObjectLit (also a bare name)
@@ -405,21 +473,37 @@ class _ExprChecker:
         if self.deferred_use(t, expr, what):
             return
         if t is not None and t not in NUMERIC:
-            self.rep.error(expr.loc, "type", f"{what} must be a number or bool, but this is a value of {self.describe(t)}")
+            self.rep.error(
+                expr.loc,
+                "type",
+                f"{what} must be a number or bool, but this is a value of {self.describe(t)}",
+            )
 
     def expect_assignable(self, t: str | None, rng: str, expr: A.Expr, what: str) -> None:
         if t is None:
             return
         if rng in NUMERIC:
             if t not in NUMERIC:
-                self.rep.error(expr.loc, "type", f"{what} must give a {rng}, but gives a value of {self.describe(t)}")
+                self.rep.error(
+                    expr.loc,
+                    "type",
+                    f"{what} must give a {rng}, but gives a value of {self.describe(t)}",
+                )
             return
         if rng not in self.types:
             return
         if t in NUMERIC:
-            self.rep.error(expr.loc, "type", f"{what} must give a value of {self.describe(rng)}, but gives a {t}")
+            self.rep.error(
+                expr.loc,
+                "type",
+                f"{what} must give a value of {self.describe(rng)}, but gives a {t}",
+            )
         elif not self.compatible(t, rng):
-            self.rep.error(expr.loc, "type", f"{what} must give a value of {self.describe(rng)}, but gives a value of {self.describe(t)}")
+            self.rep.error(
+                expr.loc,
+                "type",
+                f"{what} must give a value of {self.describe(rng)}, but gives a value of {self.describe(t)}",
+            )
 
     def expect_arg(self, arg: A.Expr, t: str | None, param: str, owner: str, index: int) -> None:
         if t is None or param not in self.types:
@@ -427,15 +511,31 @@ class _ExprChecker:
         if isinstance(arg, A.EnumLit):
             td = self.types.get(param)
             if td is None or td.kind != "enum":
-                self.rep.error(arg.loc, "type", f"argument {index} of '{owner}' must be an object of type '{param}', not the enum value '{arg.name}'")
+                self.rep.error(
+                    arg.loc,
+                    "type",
+                    f"argument {index} of '{owner}' must be an object of type '{param}', not the enum value '{arg.name}'",
+                )
             elif arg.name not in td.values:
-                self.rep.error(arg.loc, "type", f"argument {index} of '{owner}': '{arg.name}' is not a value of enum type '{param}'")
+                self.rep.error(
+                    arg.loc,
+                    "type",
+                    f"argument {index} of '{owner}': '{arg.name}' is not a value of enum type '{param}'",
+                )
             return
         if t in NUMERIC:
-            self.rep.error(arg.loc, "type", f"argument {index} of '{owner}' must be of type '{param}', not a {t}")
+            self.rep.error(
+                arg.loc,
+                "type",
+                f"argument {index} of '{owner}' must be of type '{param}', not a {t}",
+            )
             return
         if not self.compatible(t, param):
-            self.rep.error(arg.loc, "type", f"argument {index} of '{owner}' must be of type '{param}', not {self.describe(t)}")
+            self.rep.error(
+                arg.loc,
+                "type",
+                f"argument {index} of '{owner}' must be of type '{param}', not {self.describe(t)}",
+            )
 
     # -------------------------------------------------------- inference
 
@@ -473,7 +573,11 @@ class _ExprChecker:
             if not e.args and not e.primed and not e.default:
                 # A bare name that is no pvariable: an object (or, in
                 # pyRDDLGym's style, an enum value without its '@').
-                if expected is not None and expected in self.types and self.types[expected].kind == "enum":
+                if (
+                    expected is not None
+                    and expected in self.types
+                    and self.types[expected].kind == "enum"
+                ):
                     if "@" + e.name in self.types[expected].values:
                         return expected
                 self.check.deferred.append(DeferredObject(e.name, expected, e.loc, False))
@@ -483,12 +587,18 @@ class _ExprChecker:
                 self.infer(a, env)
             return None
         if e.primed and p.kind != STATE:
-            self.rep.error(e.loc, "bad-cpf", f"only state fluents have a next-state value; '{e.name}' is {_a(p.kind)}")
+            self.rep.error(
+                e.loc,
+                "bad-cpf",
+                f"only state fluents have a next-state value; '{e.name}' is {_a(p.kind)}",
+            )
         rng = p.range if p.range in NUMERIC or p.range in self.types else None
         if e.default:
             return rng
         if len(e.args) != p.arity:
-            self.rep.error(e.loc, "arity", f"'{e.name}' takes {p.arity} argument(s), not {len(e.args)}")
+            self.rep.error(
+                e.loc, "arity", f"'{e.name}' takes {p.arity} argument(s), not {len(e.args)}"
+            )
             for a in e.args:
                 self.infer(a, env)
             return rng
@@ -502,7 +612,9 @@ class _ExprChecker:
         if self.deferred_use(t, e.operand, f"'{e.op}'"):
             return None
         if t is not None and t not in NUMERIC:
-            self.rep.error(e.loc, "type", f"'{e.op}' needs a number or bool, not a value of {self.describe(t)}")
+            self.rep.error(
+                e.loc, "type", f"'{e.op}' needs a number or bool, not a value of {self.describe(t)}"
+            )
             return None
         if e.op == "~":
             return "bool"
@@ -523,13 +635,21 @@ class _ExprChecker:
             self._check_comparable(e, lt, rt)
             for t, side in ((lt, e.left), (rt, e.right)):
                 if t is not None and t not in NUMERIC:
-                    self.rep.error(side.loc, "type", f"'{op}' compares numbers, not values of {self.describe(t)}")
+                    self.rep.error(
+                        side.loc,
+                        "type",
+                        f"'{op}' compares numbers, not values of {self.describe(t)}",
+                    )
             return "bool"
         for t, side in ((lt, e.left), (rt, e.right)):
             if self.deferred_use(t, side, f"'{op}'"):
                 return None
             if t is not None and t not in NUMERIC:
-                self.rep.error(side.loc, "type", f"'{op}' needs numbers or bools, not a value of {self.describe(t)}")
+                self.rep.error(
+                    side.loc,
+                    "type",
+                    f"'{op}' needs numbers or bools, not a value of {self.describe(t)}",
+                )
                 return None
         if op in ("^", "|", "=>", "<=>"):
             return "bool"
@@ -544,7 +664,11 @@ class _ExprChecker:
     def infer_again(self, e: A.Expr, env: Env, expected: str) -> str | None:
         # Re-resolve a bare object name now that the other side's type is
         # known (drop the deferred reference made without it).
-        if isinstance(e, (A.PVar, A.ObjectLit)) and self.check.deferred and self.check.deferred[-1].loc == e.loc:
+        if (
+            isinstance(e, (A.PVar, A.ObjectLit))
+            and self.check.deferred
+            and self.check.deferred[-1].loc == e.loc
+        ):
             self.check.deferred.pop()
         return self.infer(e, env, expected)
 
@@ -555,7 +679,11 @@ class _ExprChecker:
             self.rep.error(e.loc, "type", f"'{e.op}' compares a bool with a real")
             return
         if (lt in NUMERIC) != (rt in NUMERIC) or not self.compatible(lt, rt):
-            self.rep.error(e.loc, "type", f"'{e.op}' compares a value of {self.describe(lt)} with a value of {self.describe(rt)}")
+            self.rep.error(
+                e.loc,
+                "type",
+                f"'{e.op}' compares a value of {self.describe(lt)} with a value of {self.describe(rt)}",
+            )
 
     def _bind(self, params: tuple[A.TypedVar, ...], env: Env) -> Env:
         inner: Env = dict(env)
@@ -572,7 +700,11 @@ class _ExprChecker:
         t = self.infer(e.body, inner)
         op = e.op
         if op not in AGGREGATIONS:
-            self.rep.error(e.loc, "unknown-name", f"unknown aggregation '{op}_' (expected one of {', '.join(sorted(AGGREGATIONS))})")
+            self.rep.error(
+                e.loc,
+                "unknown-name",
+                f"unknown aggregation '{op}_' (expected one of {', '.join(sorted(AGGREGATIONS))})",
+            )
             return None
         self.expect_numeric(t, e.body, f"the body of '{op}_'")
         if op in ("forall", "exists"):
@@ -634,7 +766,11 @@ class _ExprChecker:
             return None
         j = self.join(a, b)
         if j is None:
-            self.rep.error(e.loc, "type", f"the branches give a value of {self.describe(a)} and a value of {self.describe(b)}")
+            self.rep.error(
+                e.loc,
+                "type",
+                f"the branches give a value of {self.describe(a)} and a value of {self.describe(b)}",
+            )
         return j
 
     def _Switch(self, e: A.Switch, env: Env, expected: str | None) -> str | None:
@@ -644,21 +780,35 @@ class _ExprChecker:
         for case in e.cases:
             if case.label is not None:
                 lt = self.infer(case.label, env, st if st not in NUMERIC else None)
-                if st is not None and lt is not None and not (
-                    (st in NUMERIC and lt in NUMERIC) or self.compatible(st, lt)
+                if (
+                    st is not None
+                    and lt is not None
+                    and not ((st in NUMERIC and lt in NUMERIC) or self.compatible(st, lt))
                 ):
-                    self.rep.error(case.label.loc, "type", f"case label of {self.describe(lt)} in a switch on {self.describe(st)}")
+                    self.rep.error(
+                        case.label.loc,
+                        "type",
+                        f"case label of {self.describe(lt)} in a switch on {self.describe(st)}",
+                    )
                 elif isinstance(case.label, A.EnumLit) and st in self.types:
                     td = self.types[st]
                     if td.kind == "enum" and case.label.name not in td.values:
-                        self.rep.error(case.label.loc, "type", f"'{case.label.name}' is not a value of enum type '{st}'")
+                        self.rep.error(
+                            case.label.loc,
+                            "type",
+                            f"'{case.label.name}' is not a value of enum type '{st}'",
+                        )
             vt = self.infer(case.value, env, expected)
             if first:
                 out, first = vt, False
             elif out is not None and vt is not None:
                 j = self.join(out, vt)
                 if j is None:
-                    self.rep.error(case.value.loc, "type", f"switch cases give a value of {self.describe(out)} and a value of {self.describe(vt)}")
+                    self.rep.error(
+                        case.value.loc,
+                        "type",
+                        f"switch cases give a value of {self.describe(out)} and a value of {self.describe(vt)}",
+                    )
                 out = j
             else:
                 out = None
@@ -691,14 +841,24 @@ class _ExprChecker:
             if td is not None:
                 if isinstance(dc.label, A.EnumLit):
                     if td.kind != "enum" or dc.label.name not in td.values:
-                        self.rep.error(dc.label.loc, "type", f"'{dc.label.name}' is not a value of type '{e.type}'")
+                        self.rep.error(
+                            dc.label.loc,
+                            "type",
+                            f"'{dc.label.name}' is not a value of type '{e.type}'",
+                        )
                 else:
                     assert isinstance(dc.label, A.ObjectLit)
                     if td.kind == "enum":
                         if "@" + dc.label.name not in td.values:
-                            self.rep.error(dc.label.loc, "type", f"'{dc.label.name}' is not a value of type '{e.type}'")
+                            self.rep.error(
+                                dc.label.loc,
+                                "type",
+                                f"'{dc.label.name}' is not a value of type '{e.type}'",
+                            )
                     else:
-                        self.check.deferred.append(DeferredObject(dc.label.name, e.type, dc.label.loc, True))
+                        self.check.deferred.append(
+                            DeferredObject(dc.label.name, e.type, dc.label.loc, True)
+                        )
             if dc.prob is not None:
                 self.expect_numeric(self.infer(dc.prob, env), dc.prob, f"a probability of {e.name}")
         if e.name == "Multinomial":
@@ -714,7 +874,9 @@ class _ExprChecker:
         t = e.params[0].type
         return t if t in self.types else None
 
-    def _VectorDistribution(self, e: A.VectorDistribution, env: Env, expected: str | None) -> str | None:
+    def _VectorDistribution(
+        self, e: A.VectorDistribution, env: Env, expected: str | None
+    ) -> str | None:
         for a in e.args:
             if isinstance(a, A.PVar) and a.name in self.pvars:
                 continue  # vector arguments are indexed by the free slots
@@ -740,7 +902,9 @@ def _objects_of(
             untyped.update(od.names)
             continue
         if td.kind == "enum":
-            rep.error(od.loc, "type", f"'{od.type}' is an enum type; its values are fixed in the domain")
+            rep.error(
+                od.loc, "type", f"'{od.type}' is an enum type; its values are fixed in the domain"
+            )
             continue
         lst = out.setdefault(od.type, [])
         for i, name in enumerate(od.names):
@@ -806,18 +970,34 @@ def build_model(
             if ref.dollar:
                 rep.error(ref.loc, "unknown-object", f"unknown object '${ref.name}'")
             else:
-                rep.error(ref.loc, "unknown-name", f"'{ref.name}' is neither a pvariable nor an object")
+                rep.error(
+                    ref.loc, "unknown-name", f"'{ref.name}' is neither a pvariable nor an object"
+                )
         elif ref.numeric_use is not None:
-            rep.error(ref.loc, "type", f"{ref.numeric_use} needs a number or bool, not the object '{ref.name}'")
-        elif ref.expected is not None and ref.expected in types and not _is_subtype(object_type[ref.name], ref.expected, types):
-            rep.error(ref.loc, "type", f"object '{ref.name}' is of type '{object_type[ref.name]}', not '{ref.expected}'")
+            rep.error(
+                ref.loc,
+                "type",
+                f"{ref.numeric_use} needs a number or bool, not the object '{ref.name}'",
+            )
+        elif (
+            ref.expected is not None
+            and ref.expected in types
+            and not _is_subtype(object_type[ref.name], ref.expected, types)
+        ):
+            rep.error(
+                ref.loc,
+                "type",
+                f"object '{ref.name}' is of type '{object_type[ref.name]}', not '{ref.expected}'",
+            )
 
     enum_values: dict[str, list[str]] = {}
     for td in types.values():
         for v in td.values:
             enum_values.setdefault(v, []).append(td.name)
 
-    def values_of(assigns: Iterable[A.Assignment], kinds: tuple[str, ...], section: str) -> dict[GroundKey, Value]:
+    def values_of(
+        assigns: Iterable[A.Assignment], kinds: tuple[str, ...], section: str
+    ) -> dict[GroundKey, Value]:
         out: dict[GroundKey, Value] = {}
         for asg in assigns:
             p = pvars.get(asg.name)
@@ -825,10 +1005,18 @@ def build_model(
                 rep.error(asg.loc, "unknown-name", f"{section} sets unknown pvariable '{asg.name}'")
                 continue
             if p.kind not in kinds:
-                rep.error(asg.loc, "bad-assignment", f"{section} can only set {' or '.join(kinds)}s; '{asg.name}' is {_a(p.kind)}")
+                rep.error(
+                    asg.loc,
+                    "bad-assignment",
+                    f"{section} can only set {' or '.join(kinds)}s; '{asg.name}' is {_a(p.kind)}",
+                )
                 continue
             if len(asg.args) != p.arity:
-                rep.error(asg.loc, "arity", f"'{asg.name}' takes {p.arity} argument(s), not {len(asg.args)}")
+                rep.error(
+                    asg.loc,
+                    "arity",
+                    f"'{asg.name}' takes {p.arity} argument(s), not {len(asg.args)}",
+                )
                 continue
             args: list[str] = []
             ok = True
@@ -837,24 +1025,46 @@ def build_model(
                 if td is not None and td.kind == "enum":
                     v = a if a.startswith("@") else "@" + a
                     if v not in td.values:
-                        rep.error(asg.loc, "type", f"argument {i} of '{asg.name}': '{a}' is not a value of enum type '{t}'")
+                        rep.error(
+                            asg.loc,
+                            "type",
+                            f"argument {i} of '{asg.name}': '{a}' is not a value of enum type '{t}'",
+                        )
                         ok = False
                     args.append(v)
                     continue
                 if a.startswith("@"):
-                    rep.error(asg.loc, "type", f"argument {i} of '{asg.name}' must be an object of type '{t}', not the enum value '{a}'")
+                    rep.error(
+                        asg.loc,
+                        "type",
+                        f"argument {i} of '{asg.name}' must be an object of type '{t}', not the enum value '{a}'",
+                    )
                     ok = False
                 elif a in untyped_objects or t not in types:
                     ok = False  # reported where the object or type is declared
                 elif a not in object_type:
-                    rep.error(asg.loc, "unknown-object", f"argument {i} of '{asg.name}': unknown object '{a}'")
+                    rep.error(
+                        asg.loc,
+                        "unknown-object",
+                        f"argument {i} of '{asg.name}': unknown object '{a}'",
+                    )
                     ok = False
                 elif not _is_subtype(object_type[a], t, types):
-                    rep.error(asg.loc, "type", f"argument {i} of '{asg.name}': object '{a}' is of type '{object_type[a]}', not '{t}'")
+                    rep.error(
+                        asg.loc,
+                        "type",
+                        f"argument {i} of '{asg.name}': object '{a}' is of type '{object_type[a]}', not '{t}'",
+                    )
                     ok = False
                 args.append(a)
             value = _literal_value(
-                asg.resolved_value(), p.range, types, enum_values, object_type, rep, f"the value of '{asg.name}'"
+                asg.resolved_value(),
+                p.range,
+                types,
+                enum_values,
+                object_type,
+                rep,
+                f"the value of '{asg.name}'",
             )
             if not ok or value is None:
                 continue
@@ -863,7 +1073,11 @@ def build_model(
                 # The IPPC files repeat some assignments with the same value,
                 # which rddlsim accepts; two different values are a mistake.
                 shown = f"{asg.name}({', '.join(args)})" if args else asg.name
-                rep.error(asg.loc, "duplicate-definition", f"{section} sets {shown} twice, to {_show(out[key])} and {_show(value)}")
+                rep.error(
+                    asg.loc,
+                    "duplicate-definition",
+                    f"{section} sets {shown} twice, to {_show(out[key])} and {_show(value)}",
+                )
                 continue
             out[key] = value
         return out
@@ -898,7 +1112,9 @@ def build_model(
     if rep.diagnostics:
         return None, rep.diagnostics
     infos = {
-        name: TypeInfo(name, "enum" if td.kind == "enum" else "object", td.parent, tuple(members[name]), td.loc)
+        name: TypeInfo(
+            name, "enum" if td.kind == "enum" else "object", td.parent, tuple(members[name]), td.loc
+        )
         for name, td in types.items()
     }
     model = Model(

@@ -117,10 +117,24 @@ def fmt(file: str) -> None:
 @click.option("--policy", type=click.Choice(["noop", "random"]), default="noop", show_default=True)
 @click.option("--episodes", type=click.IntRange(min=1), default=10, show_default=True)
 @click.option("--seed", type=int, default=0, show_default=True)
-@click.option("--horizon", type=click.IntRange(min=1), default=None, help="Steps per episode (default: the instance's).")
+@click.option(
+    "--horizon",
+    type=click.IntRange(min=1),
+    default=None,
+    help="Steps per episode (default: the instance's).",
+)
 @click.option("--instance-name", default=None, help="Which instance, when the file holds several.")
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object.")
-def sim(domain: str, instance: str, policy: str, episodes: int, seed: int, horizon: int | None, instance_name: str | None, as_json: bool) -> None:
+def sim(
+    domain: str,
+    instance: str,
+    policy: str,
+    episodes: int,
+    seed: int,
+    horizon: int | None,
+    instance_name: str | None,
+    as_json: bool,
+) -> None:
     """Simulate episodes of a policy on DOMAIN + INSTANCE files.
 
     Prints the mean and standard deviation of the return (discounted, as

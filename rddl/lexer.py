@@ -72,7 +72,11 @@ class RDDLLexer(Lexer):
             m = match(text, pos, end)
             if m is None:
                 raise UnexpectedCharacters(
-                    text, pos, line, pos - line_start + 1, state=parser_state,
+                    text,
+                    pos,
+                    line,
+                    pos - line_start + 1,
+                    state=parser_state,
                     terminals_by_name=self.terminals_by_name,
                 )
             kind = m.lastgroup
@@ -97,7 +101,11 @@ class RDDLLexer(Lexer):
                 kind = punct.get(value)  # type: ignore[assignment]
                 if kind is None:  # a sign the grammar does not use
                     raise UnexpectedCharacters(
-                        text, start, line, start - line_start + 1, state=parser_state,
+                        text,
+                        start,
+                        line,
+                        start - line_start + 1,
+                        state=parser_state,
                         terminals_by_name=self.terminals_by_name,
                     )
             column = start - line_start + 1

@@ -169,7 +169,11 @@ def _check_instance(
         if inst.domain != domain.name:
             log.warning(
                 "%s: instance '%s' names domain '%s' but is paired with domain '%s' from %s",
-                ifile, inst.name, inst.domain, domain.name, dfile,
+                ifile,
+                inst.name,
+                inst.domain,
+                domain.name,
+                dfile,
             )
     else:
         if inst.domain is None:
@@ -179,9 +183,15 @@ def _check_instance(
         if not cands:
             unread = [f for f in index.unparsed if _mentions_domain(texts.get(f, ""), inst.domain)]
             if unread:
-                err("unknown-domain", f"instance '{inst.name}' names domain '{inst.domain}', whose file {unread[0]} has syntax errors")
+                err(
+                    "unknown-domain",
+                    f"instance '{inst.name}' names domain '{inst.domain}', whose file {unread[0]} has syntax errors",
+                )
             else:
-                err("unknown-domain", f"instance '{inst.name}' names domain '{inst.domain}', which is in none of the files given")
+                err(
+                    "unknown-domain",
+                    f"instance '{inst.name}' names domain '{inst.domain}', which is in none of the files given",
+                )
             return CheckResult(inst.name, "instance", ifile, None, diags), None
         chosen, clash = _pick(cands, ifile)  # type: ignore[arg-type]
         if clash:
@@ -198,17 +208,27 @@ def _check_instance(
     if inst.non_fluents is not None:
         ncands = index.non_fluents.get(inst.non_fluents, [])
         if not ncands:
-            err("unknown-non-fluents", f"instance '{inst.name}' names non-fluents '{inst.non_fluents}', which are in none of the files given")
+            err(
+                "unknown-non-fluents",
+                f"instance '{inst.name}' names non-fluents '{inst.non_fluents}', which are in none of the files given",
+            )
         else:
             nchosen, nclash = _pick(ncands, ifile)  # type: ignore[arg-type]
             if nclash:
                 where = ", ".join(sorted({c[1] for c in nchosen}))
-                err("duplicate-definition", f"non-fluents '{inst.non_fluents}' are defined differently in {where}")
+                err(
+                    "duplicate-definition",
+                    f"non-fluents '{inst.non_fluents}' are defined differently in {where}",
+                )
             else:
                 nf, nffile = nchosen[0]  # type: ignore[assignment]
                 assert isinstance(nf, A.NonFluents)
                 if forced is None and nf.domain is not None and nf.domain != inst.domain:
-                    err("unknown-domain", f"non-fluents '{nf.name}' are for domain '{nf.domain}', but instance '{inst.name}' is for '{inst.domain}'", nf.loc)
+                    err(
+                        "unknown-domain",
+                        f"non-fluents '{nf.name}' are for domain '{nf.domain}', but instance '{inst.name}' is for '{inst.domain}'",
+                        nf.loc,
+                    )
     if inst.non_fluents is not None and nf is None:
         # Its objects and values are missing: checking the instance's own
         # values now would only repeat that.
@@ -220,7 +240,9 @@ def _check_instance(
     return CheckResult(inst.name, "instance", ifile, None if diags else model, diags), id(domain)
 
 
-def _parse_into(files: list[Path], texts: dict[str, str], index: _Index, results: list[CheckResult]) -> None:
+def _parse_into(
+    files: list[Path], texts: dict[str, str], index: _Index, results: list[CheckResult]
+) -> None:
     for f in files:
         text = _read(f)
         texts[str(f)] = text
@@ -231,7 +253,9 @@ def _parse_into(files: list[Path], texts: dict[str, str], index: _Index, results
             results.append(CheckResult(f.name, "file", str(f), None, err.diagnostics))
 
 
-def check_pair(domain_file: str | os.PathLike[str], instance_file: str | os.PathLike[str]) -> list[CheckResult]:
+def check_pair(
+    domain_file: str | os.PathLike[str], instance_file: str | os.PathLike[str]
+) -> list[CheckResult]:
     """Check the instances of `instance_file` against the domain of
     `domain_file`, paired by file as rddlrepository and pyRDDLGym pair them
     (a different domain name in the instance is logged, not fatal). Non-fluents
@@ -240,18 +264,42 @@ def check_pair(domain_file: str | os.PathLike[str], instance_file: str | os.Path
     index = _Index()
     results: list[CheckResult] = []
     dpath, ipath = Path(domain_file), Path(instance_file)
-    _parse_into(rddl_files([dpath, ipath]) if dpath != ipath else rddl_files([dpath]), texts, index, results)
+    _parse_into(
+        rddl_files([dpath, ipath]) if dpath != ipath else rddl_files([dpath]), texts, index, results
+    )
     if results:
         return results
     domains = [d for entries in index.domains.values() for d in entries if Path(d[1]) == dpath]
     if len(domains) != 1:
         loc = A.Loc(str(dpath), 1, 1)
-        results.append(CheckResult(dpath.name, "file", str(dpath), None, [Diagnostic(loc, "unknown-domain", f"expected one domain block in this file, found {len(domains)}")]))
+        results.append(
+            CheckResult(
+                dpath.name,
+                "file",
+                str(dpath),
+                None,
+                [
+                    Diagnostic(
+                        loc,
+                        "unknown-domain",
+                        f"expected one domain block in this file, found {len(domains)}",
+                    )
+                ],
+            )
+        )
         return results
     instances = [(i, f) for i, f in index.instances if Path(f) == ipath]
     if not instances:
         loc = A.Loc(str(ipath), 1, 1)
-        results.append(CheckResult(ipath.name, "file", str(ipath), None, [Diagnostic(loc, "no-instance", "no instance block in this file")]))
+        results.append(
+            CheckResult(
+                ipath.name,
+                "file",
+                str(ipath),
+                None,
+                [Diagnostic(loc, "no-instance", "no instance block in this file")],
+            )
+        )
         return results
     domain_check = _domain_checker(texts)
 
@@ -260,7 +308,11 @@ def check_pair(domain_file: str | os.PathLike[str], instance_file: str | os.Path
     return results
 
 
-def load_pair(domain_file: str | os.PathLike[str], instance_file: str | os.PathLike[str], instance: str | None = None) -> Model:
+def load_pair(
+    domain_file: str | os.PathLike[str],
+    instance_file: str | os.PathLike[str],
+    instance: str | None = None,
+) -> Model:
     """The model of an instance file checked against a given domain file."""
     return _models_or_raise(check_pair(domain_file, instance_file), instance)
 
@@ -269,7 +321,9 @@ def _models_or_raise(results: list[CheckResult], instance: str | None) -> Model:
     models = _collect(results)
     if instance is not None:
         if instance not in models:
-            raise RDDLError(f"no instance '{instance}' (instances found: {', '.join(sorted(models)) or 'none'})")
+            raise RDDLError(
+                f"no instance '{instance}' (instances found: {', '.join(sorted(models)) or 'none'})"
+            )
         return models[instance]
     if len(models) != 1:
         raise RDDLError(f"expected one instance, found: {', '.join(sorted(models)) or 'none'}")

@@ -379,7 +379,9 @@ class _Builder(Transformer):  # type: ignore[type-arg]
     ) -> A.MatrixOp:
         return A.MatrixOp(str(tok), str(row), str(col), body, self._at(tok))
 
-    def aggregation(self, tok: Token, params: tuple[A.TypedVar, ...], body: A.Expr) -> A.Aggregation:
+    def aggregation(
+        self, tok: Token, params: tuple[A.TypedVar, ...], body: A.Expr
+    ) -> A.Aggregation:
         return A.Aggregation(str(tok), params, body, self._at(tok))
 
     def typed_vars(self, *tvs: A.TypedVar) -> tuple[A.TypedVar, ...]:
@@ -493,9 +495,23 @@ def _describe_expected(expected: set[str]) -> str:
             if n not in _EXPRESSION_STARTERS
             and n
             not in {
-                "IDENT", "NOT", "MINUS", "PLUS", "TRUE", "FALSE", "POS_INF", "NEG_INF", "IF",
-                "SWITCH", "DOLLAR", "DISCRETE", "UNNORM_DISCRETE", "MULTINOMIAL",
-                "MULTIVARIATE_NORMAL", "MULTIVARIATE_STUDENT", "DIRICHLET",
+                "IDENT",
+                "NOT",
+                "MINUS",
+                "PLUS",
+                "TRUE",
+                "FALSE",
+                "POS_INF",
+                "NEG_INF",
+                "IF",
+                "SWITCH",
+                "DOLLAR",
+                "DISCRETE",
+                "UNNORM_DISCRETE",
+                "MULTINOMIAL",
+                "MULTIVARIATE_NORMAL",
+                "MULTIVARIATE_STUDENT",
+                "DIRICHLET",
             }
         }
     words += sorted(_describe_terminal(n) for n in names)
@@ -517,12 +533,47 @@ def _describe_token(tok: Token) -> str:
 
 
 _KEYWORDS = (
-    "domain", "instance", "non-fluents", "requirements", "types", "object", "pvariables",
-    "non-fluent", "state-fluent", "interm-fluent", "derived-fluent", "observ-fluent",
-    "action-fluent", "default", "level", "cpfs", "cdfs", "reward", "state-action-constraints",
-    "action-preconditions", "state-invariants", "termination", "objects", "init-state",
-    "max-nondef-actions", "horizon", "discount", "if", "then", "else", "switch", "case",
-    "forall", "exists", "sum", "prod", "true", "false", "bool", "int", "real",
+    "domain",
+    "instance",
+    "non-fluents",
+    "requirements",
+    "types",
+    "object",
+    "pvariables",
+    "non-fluent",
+    "state-fluent",
+    "interm-fluent",
+    "derived-fluent",
+    "observ-fluent",
+    "action-fluent",
+    "default",
+    "level",
+    "cpfs",
+    "cdfs",
+    "reward",
+    "state-action-constraints",
+    "action-preconditions",
+    "state-invariants",
+    "termination",
+    "objects",
+    "init-state",
+    "max-nondef-actions",
+    "horizon",
+    "discount",
+    "if",
+    "then",
+    "else",
+    "switch",
+    "case",
+    "forall",
+    "exists",
+    "sum",
+    "prod",
+    "true",
+    "false",
+    "bool",
+    "int",
+    "real",
 )
 
 

@@ -49,7 +49,9 @@ def _reads(node: ast.AST) -> set[str]:
 
 
 def _assigns(node: ast.AST) -> list[str]:
-    return [n.id for n in ast.walk(node) if isinstance(n, ast.Name) and isinstance(n.ctx, ast.Store)]
+    return [
+        n.id for n in ast.walk(node) if isinstance(n, ast.Name) and isinstance(n.ctx, ast.Store)
+    ]
 
 
 def _writes_in_place(node: ast.AST) -> bool:
@@ -111,8 +113,14 @@ def split_step_source(source: str) -> tuple[str, str, list[str]] | None:
         needed |= _reads(stmt)
     handed = sorted(defined_pre & needed)
     ret = ", ".join(handed)
-    pre_src = _function(PRE_NAME, ["S", "B", "rng"], [*map(ast.unparse, pre), f"return ({ret}{',' if len(handed) == 1 else ''})"])
-    post_src = _function(POST_NAME, ["S", "A", "B", "check", *handed], [ast.unparse(s) for s in post])
+    pre_src = _function(
+        PRE_NAME,
+        ["S", "B", "rng"],
+        [*map(ast.unparse, pre), f"return ({ret}{',' if len(handed) == 1 else ''})"],
+    )
+    post_src = _function(
+        POST_NAME, ["S", "A", "B", "check", *handed], [ast.unparse(s) for s in post]
+    )
     return pre_src, post_src, handed
 
 

@@ -170,7 +170,11 @@ class _Env:
     __slots__ = ("state", "actions", "rng", "batch")
 
     def __init__(
-        self, state: State, actions: Mapping[str, Array], rng: np.random.Generator | None, batch: int
+        self,
+        state: State,
+        actions: Mapping[str, Array],
+        rng: np.random.Generator | None,
+        batch: int,
     ):
         self.state = state
         self.actions = actions
@@ -193,7 +197,9 @@ def _broadcasts_to(shape: tuple[int, ...], target: tuple[int, ...]) -> bool:
         return False
 
 
-def _make_step(nxt: dict[str, Array], reward: Array, obs: dict[str, Array] | None, done: Array) -> Step:
+def _make_step(
+    nxt: dict[str, Array], reward: Array, obs: dict[str, Array] | None, done: Array
+) -> Step:
     # what Step(State(nxt), reward, obs, done) makes, without the frozen
     # dataclass's setattr calls: a step is short
     out = _new(Step)
@@ -350,7 +356,9 @@ class _Code:
 
 _TEMP = re.compile(r"\bt\d+\b")
 _ASSIGN = re.compile(r"\s*(t\d+) = ")
-_BINARY = re.compile(r"(\s*)(t\d+) = (_add|_sub|_mul|_div|_minimum|_maximum|_land|_lor)\((\w+), (\w+)\)$")
+_BINARY = re.compile(
+    r"(\s*)(t\d+) = (_add|_sub|_mul|_div|_minimum|_maximum|_land|_lor)\((\w+), (\w+)\)$"
+)
 _UNARY = re.compile(
     r"(\s*)(t\d+) = (_abs|_neg|_square|_sqrt|_trunc|np\.(?:exp|log|sqrt|cos|sin|tan|arccos|arcsin|arctan|cosh|sinh|tanh))"
     r"\((t\d+)\)$"
@@ -395,7 +403,9 @@ def _drop_unused(lines: list[str]) -> list[str]:
     return out
 
 
-def _in_place(lines: list[str], meta: dict[str, tuple[tuple[int, ...], np.dtype[Any], str | None, bool]]) -> list[str]:
+def _in_place(
+    lines: list[str], meta: dict[str, tuple[tuple[int, ...], np.dtype[Any], str | None, bool]]
+) -> list[str]:
     """`lines` with binary operations written into an argument's memory
     where that argument is a temporary this function allocated, of the
     result's shape and type, not read afterwards (nor any view of it):
@@ -423,7 +433,13 @@ def _in_place(lines: list[str], meta: dict[str, tuple[tuple[int, ...], np.dtype[
             if info is None or not batched:
                 continue
             a_shape, a_dtype, a_owner, a_batched = info
-            if a_owner == arg and a_batched and a_shape == shape and a_dtype == dtype and buffer_last.get(arg) == i:
+            if (
+                a_owner == arg
+                and a_batched
+                and a_shape == shape
+                and a_dtype == dtype
+                and buffer_last.get(arg) == i
+            ):
                 # (from here on the buffer is the result's, and only its)
                 out[i] = f"{m.group(1)}{m.group(2)} = {m.group(3)}({', '.join(args)}, out={arg})"
                 break
@@ -460,7 +476,11 @@ def _free_dead(lines: list[str]) -> list[str]:
 
 
 _DTYPES = {"bool": np.bool_, "int": np.int64, "real": np.float64}
-_DTYPE_CODE = {np.dtype(np.bool_): "_bool", np.dtype(np.int64): "_i64", np.dtype(np.float64): "_f64"}
+_DTYPE_CODE = {
+    np.dtype(np.bool_): "_bool",
+    np.dtype(np.int64): "_i64",
+    np.dtype(np.float64): "_f64",
+}
 
 
 @functools.lru_cache(maxsize=4096)
@@ -950,8 +970,12 @@ class _Compiler:
                 try:
                     with np.errstate(all="ignore"):
                         code = _compiled(template.format("_x"))
-                        lo = eval(code, self.ns, {"_x": np.broadcast_to(b[0], args[0].shape), "B": 1})  # noqa: S307
-                        hi = eval(code, self.ns, {"_x": np.broadcast_to(b[1], args[0].shape), "B": 1})  # noqa: S307
+                        lo = eval(
+                            code, self.ns, {"_x": np.broadcast_to(b[0], args[0].shape), "B": 1}
+                        )  # noqa: S307
+                        hi = eval(
+                            code, self.ns, {"_x": np.broadcast_to(b[1], args[0].shape), "B": 1}
+                        )  # noqa: S307
                     node.bounds = (np.asarray(lo), np.asarray(hi))
                 except (ValueError, TypeError):
                     pass  # a view that is not a rearrangement (of the bytes, say): no bounds
@@ -962,7 +986,10 @@ class _Compiler:
                     found = bounds(*given)
                 # (finite, and small enough that int64 arithmetic cannot wrap)
                 if found is not None and all((np.abs(x) < 2.0**52).all() for x in found):
-                    node.bounds = (np.asarray(found[0], dtype=np.float64), np.asarray(found[1], dtype=np.float64))
+                    node.bounds = (
+                        np.asarray(found[0], dtype=np.float64),
+                        np.asarray(found[1], dtype=np.float64),
+                    )
         self.code.store(key, node)
         return node
 
@@ -1011,7 +1038,12 @@ class _Compiler:
         if m is None:
             return None
         ufunc = self.ns.get(m.group(1))
-        if not isinstance(ufunc, np.ufunc) or ufunc.nin != 2 or ufunc.nout != 1 or ufunc.signature is not None:
+        if (
+            not isinstance(ufunc, np.ufunc)
+            or ufunc.nin != 2
+            or ufunc.nout != 1
+            or ufunc.signature is not None
+        ):
             return None
         i = 0 if args[0].value is not None else 1
         k, x = args[i], args[1 - i]
@@ -1034,7 +1066,13 @@ class _Compiler:
         assert k.value is not None
         # (the value's shape here is its shape at run time: its batch axis,
         # last, is 1 here and 1 then)
-        if not x.batched or not x.shape or x.shape[-1] != 1 or k.shape == x.shape or x.dtype.kind not in "biuf":
+        if (
+            not x.batched
+            or not x.shape
+            or x.shape[-1] != 1
+            or k.shape == x.shape
+            or x.dtype.kind not in "biuf"
+        ):
             return None
         if int(np.prod(x.shape)) > _WIDEN_LIMIT:
             return None
@@ -1068,7 +1106,11 @@ class _Compiler:
             return None
         cells = int(np.prod(x.shape))
         flat = k.value.reshape(-1)
-        same = bool((flat == flat[0]).all()) and not np.isnan(flat[0]) if k.dtype.kind == "f" else bool((flat == flat[0]).all())
+        same = (
+            bool((flat == flat[0]).all()) and not np.isnan(flat[0])
+            if k.dtype.kind == "f"
+            else bool((flat == flat[0]).all())
+        )
         slow_scalar = name in ("_minimum", "_maximum")
         out = list(args)
         if same and not slow_scalar:
@@ -1170,7 +1212,9 @@ class _Compiler:
             return f"_contiguous(({text}){_batch_last(rank)})"
         return f"({text}){_batch_last(rank)}"
 
-    def total(self, node: _Node, axes: tuple[int, ...], rtype: str, keepdims: bool = False) -> _Node:
+    def total(
+        self, node: _Node, axes: tuple[int, ...], rtype: str, keepdims: bool = False
+    ) -> _Node:
         """`node` summed over `axes` (as np.sum: bools counted as int64).
         For large batches, bools are counted in bytes where fewer than 256
         are added (several times faster than adding them as int64)."""
@@ -1179,7 +1223,9 @@ class _Compiler:
         keep = ", None, True" if keepdims else ""
         count = int(np.prod([node.shape[a] for a in axes]))
         if self.large and node.dtype == np.bool_ and count < 256:
-            return self.op(f"_sum({{0}}.view(_u8), {_axis_code(axes)}, _u8{keep}).astype(_i64)", [node], rtype)
+            return self.op(
+                f"_sum({{0}}.view(_u8), {_axis_code(axes)}, _u8{keep}).astype(_i64)", [node], rtype
+            )
         if keepdims:
             return self.op(f"_sum({{0}}, {_axis_code(axes)}, None{keep})", [node], rtype)
         return self.op(f"_sum({{0}}, {_axis_code(axes)})", [node], rtype)
@@ -1242,7 +1288,11 @@ class _Compiler:
         # a pure expression: in the scope of the variables it reads, once
         names = [v for v, _ in scope]
         used = sorted(
-            {max(i for i, v in enumerate(names) if v == name) for name in self.free_vars(e) if name in names}
+            {
+                max(i for i, v in enumerate(names) if v == name)
+                for name in self.free_vars(e)
+                if name in names
+            }
         )
         if len(used) < len(scope):
             node = self.compile(e, tuple(scope[i] for i in used), hint)
@@ -1307,7 +1357,10 @@ class _Compiler:
             # read before it is computed (or where it has no value): rddlsim
             # has no value to give either
             node = self.emit_value(
-                f"{self.aux(_missing)}({key!r})", (*self.shape_of(p), 1), _DTYPES.get(p.range, np.int64), p.range
+                f"{self.aux(_missing)}({key!r})",
+                (*self.shape_of(p), 1),
+                _DTYPES.get(p.range, np.int64),
+                p.range,
             )
             self.values[key] = (node, None)
             return node
@@ -1389,13 +1442,17 @@ class _Compiler:
             lt = left.rtype
             right = self.compile(e.right, scope, lt)
             rt = right.rtype
-            if lt != rt and (lt in self.codes) != (rt in self.codes) or (
-                lt in self.codes and rt in self.codes and lt != rt
+            if (
+                lt != rt
+                and (lt in self.codes) != (rt in self.codes)
+                or (lt in self.codes and rt in self.codes and lt != rt)
             ):
                 # mixed forms: compare as numbers where an enum is numeric
                 left = self.to_numeric(left)
                 right = (
-                    self.to_numeric(right) if self.is_random(e.right) else self.numeric(e.right, scope)
+                    self.to_numeric(right)
+                    if self.is_random(e.right)
+                    else self.numeric(e.right, scope)
                 )
             pair = self.narrowed(left, right)
             return self.op("_eq({0}, {1})" if e.op == "==" else "_ne({0}, {1})", pair, "bool")
@@ -1434,15 +1491,21 @@ class _Compiler:
         if op == "+":
             if lt == rt == "bool":
                 return self.op("{0}.astype(_i64) + {1}", args, "int", bounds=_bounds_add)
-            return self.narrow_result(self.op("_add({0}, {1})", args, out, bounds=_bounds_add), "_add", args)
+            return self.narrow_result(
+                self.op("_add({0}, {1})", args, out, bounds=_bounds_add), "_add", args
+            )
         if op == "-":
             if lt == "bool":
                 return self.op("{0}.astype(_i64) - {1}", args, out, bounds=_bounds_sub)
-            return self.narrow_result(self.op("_sub({0}, {1})", args, out, bounds=_bounds_sub), "_sub", args)
+            return self.narrow_result(
+                self.op("_sub({0}, {1})", args, out, bounds=_bounds_sub), "_sub", args
+            )
         if op == "*":
             if lt == rt == "bool":
                 return self.op("_land({0}, {1}).astype(_i64)", args, "int")
-            return self.narrow_result(self.op("_mul({0}, {1})", args, out, bounds=_bounds_mul), "_mul", args)
+            return self.narrow_result(
+                self.op("_mul({0}, {1})", args, out, bounds=_bounds_mul), "_mul", args
+            )
         if op == "/":
             return self.op("_div({0}, {1})", args, "real", bounds=_bounds_div)
         raise SimulationError(f"{e.loc}: unknown operator '{op}'")
@@ -1468,7 +1531,12 @@ class _Compiler:
         uint8 form too where its bounds prove it within [0, 255] (so that
         uint8 arithmetic makes the same values). (Both are written; the
         one not read is dropped from the function.)"""
-        if node.dtype != np.int64 or node.narrow is not None or node.value is not None or not self.large:
+        if (
+            node.dtype != np.int64
+            or node.narrow is not None
+            or node.value is not None
+            or not self.large
+        ):
             return node
         b = node.bounds
         if b is None or b[0].min(initial=0) < 0 or b[1].max(initial=0) > 255:
@@ -1507,7 +1575,9 @@ class _Compiler:
                 with alternative():
                     then = self.compile(e.then, scope, hint)
                 with alternative():
-                    else_ = self.compile(e.else_, scope, hint if then.rtype not in _DTYPES else then.rtype)
+                    else_ = self.compile(
+                        e.else_, scope, hint if then.rtype not in _DTYPES else then.rtype
+                    )
             t = _join(then.rtype, else_.rtype)
             if cond.dtype == then.dtype == else_.dtype == np.bool_:
                 # a constant true or false branch: one logical operation
@@ -1638,7 +1708,11 @@ class _Compiler:
                 return self.compile(split, scope, hint)
         body: _Node | None = None
         chain = e.body.op if isinstance(e.body, A.Binary) else None
-        if op in ("sum", "exists") and chain in ("^", "*") and not (op == "exists" and chain == "*"):
+        if (
+            op in ("sum", "exists")
+            and chain in ("^", "*")
+            and not (op == "exists" and chain == "*")
+        ):
             assert isinstance(e.body, A.Binary) and chain is not None
             leaves = _leaves(e.body, chain)
             nodes = [self.numeric(leaf, inner) for leaf in leaves]
@@ -1658,9 +1732,13 @@ class _Compiler:
             # as the definition says: over every grounding of the variables
             full = f"_broadcast_to({{0}}, {{0}}.shape[:{n}] + {sizes} + {{0}}.shape[-1:])"
             if op == "sum":
-                return self.op(f"np.sum({full}, axis={axes})", [body], "int" if bt == "bool" else bt)
+                return self.op(
+                    f"np.sum({full}, axis={axes})", [body], "int" if bt == "bool" else bt
+                )
             if op == "prod":
-                return self.op(f"np.prod({full}, axis={axes})", [body], "int" if bt == "bool" else bt)
+                return self.op(
+                    f"np.prod({full}, axis={axes})", [body], "int" if bt == "bool" else bt
+                )
             if op == "avg":
                 return self.op(f"np.mean({full}, axis={axes})", [body], "real")
             if op in ("min", "max"):
@@ -1672,12 +1750,17 @@ class _Compiler:
             if op in ("argmax", "argmin"):
                 return self.op(f"np.{op}({full}, axis={n})", [body], e.params[0].type)
         size = int(np.prod(body.shape))
-        if k == 1 and op in ("sum", "min", "max", "forall", "exists") and body.shape[n] > 1 and (
-            body.shape[n] <= 2 or (body.shape[n] <= 8 and size >= 2048)
+        if (
+            k == 1
+            and op in ("sum", "min", "max", "forall", "exists")
+            and body.shape[n] > 1
+            and (body.shape[n] <= 2 or (body.shape[n] <= 8 and size >= 2048))
         ):
             # a short axis: its slices combined, not a reduction (numpy
             # reduces a short axis in many short loops, slowly)
-            parts = ["{0}[" + ", ".join([":"] * n + [str(j), ":"]) + "]" for j in range(body.shape[n])]
+            parts = [
+                "{0}[" + ", ".join([":"] * n + [str(j), ":"]) + "]" for j in range(body.shape[n])
+            ]
             if op == "sum":
                 if body.dtype == np.bool_:
                     parts[0] += ".astype(_i64)"
@@ -1724,7 +1807,9 @@ class _Compiler:
             if len(deps) == 1:
                 i = deps[0]
                 if op == "exists":
-                    nodes[i] = self.op(f"_any({{0}}, {a}, _bool, None, True)", [nodes[i]], nodes[i].rtype)
+                    nodes[i] = self.op(
+                        f"_any({{0}}, {a}, _bool, None, True)", [nodes[i]], nodes[i].rtype
+                    )
                 else:
                     nodes[i] = self.total(nodes[i], (a,), nodes[i].rtype, keepdims=True)
                 changed = True
@@ -1760,7 +1845,11 @@ class _Compiler:
         if not (isinstance(body, A.Binary) and body.op == "*"):
             return None
         leaves = _leaves(body, "*")
-        split = [x for x in leaves if isinstance(x, A.Binary) and x.op in ("+", "-") and not self.is_static(x)]
+        split = [
+            x
+            for x in leaves
+            if isinstance(x, A.Binary) and x.op in ("+", "-") and not self.is_static(x)
+        ]
         if len(split) != 1 or not any(self.is_static(x) for x in leaves):
             return None
         target = split[0]
@@ -1770,11 +1859,16 @@ class _Compiler:
             if x is target:
                 return new
             if isinstance(x, A.Binary) and x.op == "*":
-                return A.Binary(op="*", left=replace(x.left, new), right=replace(x.right, new), loc=x.loc)
+                return A.Binary(
+                    op="*", left=replace(x.left, new), right=replace(x.right, new), loc=x.loc
+                )
             return x
 
         return A.Binary(
-            op=target.op, left=agg(replace(body, target.left)), right=agg(replace(body, target.right)), loc=target.loc
+            op=target.op,
+            left=agg(replace(body, target.left)),
+            right=agg(replace(body, target.right)),
+            loc=target.loc,
         )
 
     def _rebuild(self, e: A.Expr, chain: str, nodes: Iterator[_Node]) -> _Node:
@@ -1859,10 +1953,14 @@ class _Compiler:
         # variables only one side depends on: reduce them on that side first
         if k_only:
             ax = tuple(k_only)
-            kv = np.asarray(kv.any(axis=ax, keepdims=True) if op == "exists" else kv.sum(axis=ax, keepdims=True))
+            kv = np.asarray(
+                kv.any(axis=ax, keepdims=True) if op == "exists" else kv.sum(axis=ax, keepdims=True)
+            )
         if f_only:
             if op == "exists":
-                f = self.op(f"_any({{0}}, {_axis_code(tuple(f_only))}, _bool, None, True)", [f], f.rtype)
+                f = self.op(
+                    f"_any({{0}}, {_axis_code(tuple(f_only))}, _bool, None, True)", [f], f.rtype
+                )
             else:
                 f = self.total(f, tuple(f_only), f.rtype, keepdims=True)
         if not contracted:
@@ -1884,7 +1982,10 @@ class _Compiler:
         f_out = [i for i in range(n) if fs[i] > 1 and ks[i] == 1]
         k_out = [i for i in range(n) if ks[i] > 1 and fs[i] == 1]
         size = [max(fs[i], ks[i]) for i in range(n + k)]
-        S, C, KO = (int(np.prod([size[i] for i in ax], dtype=np.int64)) for ax in (shared, contracted, k_out))
+        S, C, KO = (
+            int(np.prod([size[i] for i in ax], dtype=np.int64))
+            for ax in (shared, contracted, k_out)
+        )
         # the constant side as (S, KO, C) matrices, the fluent side as
         # (S, C, columns): f's axes in the order shared, contracted, f_out, batch
         first = shared + k_out + contracted
@@ -1907,7 +2008,9 @@ class _Compiler:
             flat = self.op(f"{fx}.reshape({C}, -1)", [f], f.rtype, view=True)
             if padded:
                 flat = self.op("_pad_zero_row({0})", [flat], f.rtype)
-            rows = [self.const(c, "int").code for c in cols]  # (the same text for the same relation)
+            rows = [
+                self.const(c, "int").code for c in cols
+            ]  # (the same text for the same relation)
             if f.dtype == np.bool_:
                 # counts of bools, added as bytes (at most _SPARSE_MAX of
                 # them); an exists is a count above 0, so that an exists and
@@ -1940,12 +2043,21 @@ class _Compiler:
             if not self.large and S * KO * C * FO * _LARGE_BATCH <= _BLAS_BLOCK:
                 matmul = "_matmul"
             shape = f"{C}, -1" if S == 1 else f"{S}, {C}, -1"
-            if matmul == "_matmul" and op == "exists" and f.dtype == np.bool_ and kv.dtype == np.bool_:
+            if (
+                matmul == "_matmul"
+                and op == "exists"
+                and f.dtype == np.bool_
+                and kv.dtype == np.bool_
+            ):
                 # small: numpy's boolean product is the exists itself (no casts)
-                mat = self.const(np.ascontiguousarray(kmat[0] if S == 1 else kmat, dtype=bool), "bool").code
+                mat = self.const(
+                    np.ascontiguousarray(kmat[0] if S == 1 else kmat, dtype=bool), "bool"
+                ).code
                 out = self.op(f"_matmul({mat}, {fx}.reshape({shape}))", [f], "bool")
             else:
-                mat = self.const(np.ascontiguousarray(kmat[0] if S == 1 else kmat, dtype=dt), "real").code
+                mat = self.const(
+                    np.ascontiguousarray(kmat[0] if S == 1 else kmat, dtype=dt), "real"
+                ).code
                 text = f"{matmul}({mat}, {fx}.reshape({shape}).astype({dcode}, copy=False))"
                 out = self.op(text, [f], "real" if real else "int")
                 if op == "exists":
@@ -2056,17 +2168,26 @@ class _Compiler:
             return self._bernoulli(p, full, where)
         if name == "Normal":
             m, v = params
-            self._check(v, lambda x: x < 0, "_cnz(_lt({0}, 0))", _param_error(where, "variance is negative", lambda x: x < 0))
+            self._check(
+                v,
+                lambda x: x < 0,
+                "_cnz(_lt({0}, 0))",
+                _param_error(where, "variance is negative", lambda x: x < 0),
+            )
             sd = self.op("_sqrt({0})", [v], "real")
             self.code.draws.append(where)
             # loc + scale * z: what rng.normal(loc, scale) computes, draw for
             # draw, without its slow per-element broadcasting loop; drawn
             # batch last, as laid out here
-            z = self.emit_value(f"rng.standard_normal({_last_shape_code(full)})", (*full, 1), np.float64, "real")
+            z = self.emit_value(
+                f"rng.standard_normal({_last_shape_code(full)})", (*full, 1), np.float64, "real"
+            )
             if self.large:
                 # (two operations, each written in place, with its constant
                 # as numpy takes it fastest: see `_spread_constant`)
-                return self.op("_add({0}, {1})", [m, self.op("_mul({0}, {1})", [sd, z], "real")], "real")
+                return self.op(
+                    "_add({0}, {1})", [m, self.op("_mul({0}, {1})", [sd, z], "real")], "real"
+                )
             return self.op("_add({0}, _mul({1}, {2}))", [m, sd, z], "real")
         sampler = _sampler(name, where)
         if sampler is None:
@@ -2075,7 +2196,9 @@ class _Compiler:
         self.code.draws.append(where)
         args = ", ".join(p.code + first for p in params)
         dtype = np.int64 if out == "int" else np.float64
-        return self.emit_value(self.batch_last(f"{self.aux(draw)}(rng, {shape}, {args})", rank), (*full, 1), dtype, out)
+        return self.emit_value(
+            self.batch_last(f"{self.aux(draw)}(rng, {shape}, {args})", rank), (*full, 1), dtype, out
+        )
 
     def _bernoulli(self, p: _Node, full: tuple[int, ...], where: str) -> _Node:
         """Bernoulli(p) (p checked), one draw per batch element and per
@@ -2177,7 +2300,9 @@ class _Compiler:
                 return self.emit_value(self.batch_last(text, rank), out_shape, np.int64, t)
         sampler = _discrete_sampler(codes, normalise, where, draw_shape)
         args = ", ".join("None" if p is None else p.code + to_first for p in probs)
-        return self.emit_value(self.batch_last(f"{self.aux(sampler)}(rng, B, [{args}])", rank), out_shape, np.int64, t)
+        return self.emit_value(
+            self.batch_last(f"{self.aux(sampler)}(rng, B, [{args}])", rank), out_shape, np.int64, t
+        )
 
     def _DiscreteOver(self, e: A.DiscreteOver, scope: Scope, hint: str | None) -> _Node:
         if len(e.params) != 1:
@@ -2190,7 +2315,9 @@ class _Compiler:
         sampler = _discrete_over_sampler(size, e.name == "UnnormDiscrete", where, full)
         self.code.draws.append(where)
         # the weights batch first, the variable's axis last, as the draws are made
-        text = self.batch_last(f"{self.aux(sampler)}(rng, B, {w.code}{_batch_first(len(full) + 2)})", len(full) + 1)
+        text = self.batch_last(
+            f"{self.aux(sampler)}(rng, B, {w.code}{_batch_first(len(full) + 2)})", len(full) + 1
+        )
         return self.emit_value(text, (*full, 1), np.int64, e.params[0].type)
 
     def _unsupported(self, e: A.Expr, scope: Scope, hint: str | None) -> _Node:
@@ -2358,10 +2485,15 @@ def _sampler(name: str, where: str) -> tuple[Callable[..., Array], str] | None:
 def _stack_probabilities(ps: list[Array | None], shape: tuple[int, ...]) -> Array:
     """Discrete's probabilities along a last axis; the case without one
     takes what the others leave (never below 0)."""
-    full = [np.broadcast_to(np.asarray(p, dtype=np.float64), shape) if p is not None else None for p in ps]
+    full = [
+        np.broadcast_to(np.asarray(p, dtype=np.float64), shape) if p is not None else None
+        for p in ps
+    ]
     known = [p for p in full if p is not None]
     total_known = sum(known) if known else np.zeros(shape)
-    return np.stack([p if p is not None else np.maximum(1.0 - total_known, 0.0) for p in full], axis=-1)
+    return np.stack(
+        [p if p is not None else np.maximum(1.0 - total_known, 0.0) for p in full], axis=-1
+    )
 
 
 def _fixed_categorical(
@@ -2601,7 +2733,10 @@ class Simulator:
         """The instance's initial state, repeated `batch` times."""
         # laid out batch last in memory, as `step` makes its states
         return State(
-            {k: np.moveaxis(np.repeat(v[..., None], batch, axis=-1), -1, 0) for k, v in self._initial.items()}
+            {
+                k: np.moveaxis(np.repeat(v[..., None], batch, axis=-1), -1, 0)
+                for k, v in self._initial.items()
+            }
         )
 
     def noop(self, batch: int = 1) -> dict[str, Array]:
@@ -2617,6 +2752,7 @@ class Simulator:
         c = self._c
         c.context += 1
         c.values = dict(self._nf_nodes)
+
         # arrays come batch first (B, *params); the generated code works
         # batch last (*params, B): a view, and no copy where the array was
         # made by a step (its memory is batch last)
@@ -2648,7 +2784,13 @@ class Simulator:
         c = self._c
         dtype = np.dtype(dtype)
         full = (*shape, 1)
-        if node.batched and node.shape == full and node.dtype == dtype and node.owner and node.owner not in used:
+        if (
+            node.batched
+            and node.shape == full
+            and node.dtype == dtype
+            and node.owner
+            and node.owner not in used
+        ):
             used.add(node.owner)
             if not c.large:
                 return node
@@ -2753,15 +2895,24 @@ class Simulator:
             holds = c.numeric(expr, ())
             code.emit(f"_lor(done, {holds.code}, out=done)")
         # returned batch first: views of the batch-last arrays
-        states = "{" + ", ".join(
-            f"{p.name!r}: {nxt[p.name].code}{_batch_first(p.arity + 1)}" for p in self.state_fluents
-        ) + "}"
+        states = (
+            "{"
+            + ", ".join(
+                f"{p.name!r}: {nxt[p.name].code}{_batch_first(p.arity + 1)}"
+                for p in self.state_fluents
+            )
+            + "}"
+        )
         observed = "None"
         if self.observ_fluents:
             pv = model.pvariables
-            observed = "{" + ", ".join(
-                f"{k!r}: {v.code}{_batch_first(pv[k].arity + 1)}" for k, v in obs.items()
-            ) + "}"
+            observed = (
+                "{"
+                + ", ".join(
+                    f"{k!r}: {v.code}{_batch_first(pv[k].arity + 1)}" for k, v in obs.items()
+                )
+                + "}"
+            )
         code.emit(f"return {states}, {reward}, {observed}, done")
         return c.build(code)
 
@@ -2778,7 +2929,9 @@ class Simulator:
                     elif name == "_step_one":
                         fn = self._step_one = self._build_step(large=False, one=True)
                     else:
-                        fn = self._build_constraints(name, explain=name == "_check", large=name.endswith("_large"))
+                        fn = self._build_constraints(
+                            name, explain=name == "_check", large=name.endswith("_large")
+                        )
                     self._compiled[name] = fn
         return fn
 
@@ -2786,7 +2939,9 @@ class Simulator:
         """The function of the preconditions' mask for this batch size."""
         return self._function("_legal" if batch < _LARGE_BATCH else "_legal_large")
 
-    def _build_constraints(self, name: str, explain: bool, large: bool = False) -> Callable[..., Any]:
+    def _build_constraints(
+        self, name: str, explain: bool, large: bool = False
+    ) -> Callable[..., Any]:
         """`explain`: a function that raises for the first violated
         constraint (max-nondef-actions included); else one that returns
         the mask of the states where every precondition holds."""
@@ -2820,7 +2975,9 @@ class Simulator:
                 f"{', '.join(self.actions_to_names(actions, i)) or 'noop'}"
             )
 
-    def _fail_precondition(self, k: int, holds: Array, actions: Mapping[str, Array], batch: int) -> None:
+    def _fail_precondition(
+        self, k: int, holds: Array, actions: Mapping[str, Array], batch: int
+    ) -> None:
         expr = self._preconditions[k]
         ok = np.broadcast_to(np.asarray(holds, dtype=bool).reshape(-1), (batch,))
         i = int(np.argmin(ok))
@@ -2867,7 +3024,9 @@ class Simulator:
             out[name] = a
         return out
 
-    def _env(self, state: State, actions: Mapping[str, Array], rng: np.random.Generator | None) -> _Env:
+    def _env(
+        self, state: State, actions: Mapping[str, Array], rng: np.random.Generator | None
+    ) -> _Env:
         return _Env(state, actions, rng, state.batch)
 
     def count_nondefault(self, actions: Mapping[str, Array], batch: int) -> Array:
@@ -2932,7 +3091,10 @@ class Simulator:
                     split = split_step_source(self._c.sources["_step_one"])
                     if split is not None:
                         pre_src, post_src, _ = split
-                        got = (self._c.define(PRE_NAME, pre_src), self._c.define(POST_NAME, post_src))
+                        got = (
+                            self._c.define(PRE_NAME, pre_src),
+                            self._c.define(POST_NAME, post_src),
+                        )
                     self._compiled["_split_one"] = got
         return got  # type: ignore[no-any-return]
 
@@ -2959,13 +3121,24 @@ class Simulator:
             return None
         return Prepared(state, values, saved)
 
-    def finish(self, prepared: Prepared, actions: Mapping[str, Array] | None, check: bool = True) -> Step:
+    def finish(
+        self, prepared: Prepared, actions: Mapping[str, Array] | None, check: bool = True
+    ) -> Step:
         """The step `prepared` was made for, with these actions (as `step`
         takes them). A step that raises may leave the generator further on
         than `step` would have (its draws were made ahead)."""
         split = self._split_one()
         assert split is not None
-        return _make_step(*_quietly(split[1], prepared.state.values, self._actions(actions, 1), 1, check, *prepared.values))
+        return _make_step(
+            *_quietly(
+                split[1],
+                prepared.state.values,
+                self._actions(actions, 1),
+                1,
+                check,
+                *prepared.values,
+            )
+        )
 
     @staticmethod
     def unprepare(prepared: Prepared, rng: np.random.Generator) -> None:
@@ -3022,7 +3195,9 @@ class Simulator:
             self._take_legal(state, actions, p, flat, order, values, candidates, taken, limit)
         ok = self.check_actions(state, actions)
         if not ok.all():
-            raise SimulationError(f"no legal action in state {int(np.argmin(ok))} of the batch, not even noop")
+            raise SimulationError(
+                f"no legal action in state {int(np.argmin(ok))} of the batch, not even noop"
+            )
         return actions
 
     def _take_legal(
@@ -3145,12 +3320,22 @@ class Simulator:
         grounds = self._groundings()
         for p, _ in grounds:
             if p.range != "bool":
-                raise SimulationError(f"legal_actions enumerates boolean actions only; '{p.name}' is {p.range}")
-        k_max = len(grounds) if self.model.max_nondef_actions is None else min(self.model.max_nondef_actions, len(grounds))
+                raise SimulationError(
+                    f"legal_actions enumerates boolean actions only; '{p.name}' is {p.range}"
+                )
+        k_max = (
+            len(grounds)
+            if self.model.max_nondef_actions is None
+            else min(self.model.max_nondef_actions, len(grounds))
+        )
         count = sum(_comb(len(grounds), k) for k in range(k_max + 1))
         if count > limit:
-            raise SimulationError(f"{count} candidate joint actions, more than the limit of {limit}")
-        combos = [c for k in range(k_max + 1) for c in itertools.combinations(range(len(grounds)), k)]
+            raise SimulationError(
+                f"{count} candidate joint actions, more than the limit of {limit}"
+            )
+        combos = [
+            c for k in range(k_max + 1) for c in itertools.combinations(range(len(grounds)), k)
+        ]
         actions = self.noop(len(combos))
         for row, combo in enumerate(combos):
             for g in combo:
@@ -3197,10 +3382,16 @@ class Simulator:
             default = self._defaults[p.name]
             for args, idx in self._ground(p):
                 if arr[idx] != default[idx]:
-                    out.append(f"{_wire_name(p.name, args)} = {_wire_value(self._decode(p, arr[idx]))}")
+                    out.append(
+                        f"{_wire_name(p.name, args)} = {_wire_value(self._decode(p, arr[idx]))}"
+                    )
         return out
 
-    def actions_from_names(self, named: Iterable[Mapping[tuple[str, tuple[str, ...]], Value]] | Mapping[tuple[str, tuple[str, ...]], Value]) -> dict[str, Array]:
+    def actions_from_names(
+        self,
+        named: Iterable[Mapping[tuple[str, tuple[str, ...]], Value]]
+        | Mapping[tuple[str, tuple[str, ...]], Value],
+    ) -> dict[str, Array]:
         """Action arrays from {(name, (args...)): value} maps, one per batch
         element (a single map gives a batch of one)."""
         batches = [named] if isinstance(named, Mapping) else list(named)
@@ -3217,15 +3408,17 @@ class Simulator:
                 except KeyError as err:
                     raise SimulationError(f"'{name}{args}': unknown object {err}") from None
                 if p.range in self._c.codes:
-                    v = value if isinstance(value, str) and value in self._c.codes[p.range] else "@" + str(value).lstrip("@")
+                    v = (
+                        value
+                        if isinstance(value, str) and value in self._c.codes[p.range]
+                        else "@" + str(value).lstrip("@")
+                    )
                     if v not in self._c.codes[p.range]:
                         raise SimulationError(f"'{name}': '{value}' is not a value of '{p.range}'")
                     out[name][(b, *idx)] = self._c.codes[p.range][v]
                 else:
                     out[name][(b, *idx)] = value
         return out
-
-
 
 
 def _wire_name(name: str, args: tuple[str, ...]) -> str:

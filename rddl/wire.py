@@ -137,7 +137,9 @@ class WireCodec:
 
     # -- server side: tensors -> wire
 
-    def _listing(self, layouts: list[_Layout], values: Mapping[str, np.ndarray], index: int) -> list[WireFluent]:
+    def _listing(
+        self, layouts: list[_Layout], values: Mapping[str, np.ndarray], index: int
+    ) -> list[WireFluent]:
         out: list[WireFluent] = []
         for lay in layouts:
             flat = np.asarray(values[lay.pvar.name][index]).reshape(-1).tolist()
@@ -153,11 +155,15 @@ class WireCodec:
         """Every grounding of every state fluent, in rddlsim's order."""
         return self._listing(self._state, state.values, index)
 
-    def observation(self, observation: Mapping[str, np.ndarray], index: int = 0) -> list[WireFluent]:
+    def observation(
+        self, observation: Mapping[str, np.ndarray], index: int = 0
+    ) -> list[WireFluent]:
         """Every grounding of every observ fluent, in rddlsim's order."""
         return self._listing(self._observ, observation, index)
 
-    def turn_fluents(self, state: State, observation: Mapping[str, np.ndarray] | None, index: int = 0) -> list[WireFluent] | None:
+    def turn_fluents(
+        self, state: State, observation: Mapping[str, np.ndarray] | None, index: int = 0
+    ) -> list[WireFluent] | None:
         """What a turn carries: the state (MDP), the observation (POMDP), or
         None for a POMDP's first turn (`<no-observed-fluents/>`)."""
         if not self.pomdp:
@@ -178,7 +184,9 @@ class WireCodec:
             diff = np.argwhere(arr != default)
             for idx in diff:
                 t = tuple(int(i) for i in idx)
-                args = tuple(self.model.types[ty].members[i] for ty, i in zip(p.params, t, strict=True))
+                args = tuple(
+                    self.model.types[ty].members[i] for ty, i in zip(p.params, t, strict=True)
+                )
                 out.append((p.name, args, self.sim._decode(p, arr[t])))
         return out
 
@@ -294,7 +302,9 @@ class WireCodec:
         if not self.sim._preconditions:
             return None
         try:
-            self.sim._check_preconditions(self.sim._env(state, decoded.arrays, None), decoded.arrays, 1)
+            self.sim._check_preconditions(
+                self.sim._env(state, decoded.arrays, None), decoded.arrays, 1
+            )
         except SimulationError as err:
             return str(err)
         return None

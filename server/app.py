@@ -25,7 +25,12 @@ log = logging.getLogger(__name__)
 
 
 def open_services(
-    config: ServerConfig, registry: Registry, port: int, *, owner: str | None = None, stamp: str | None = None
+    config: ServerConfig,
+    registry: Registry,
+    port: int,
+    *,
+    owner: str | None = None,
+    stamp: str | None = None,
 ) -> Services:
     """The result store, rddlsim's log file and the transcript factory the
     configuration asks for. `owner` names the store's sessions (see
@@ -35,7 +40,11 @@ def open_services(
     from .store import ResultStore
 
     store = ResultStore(config.db, owner=owner) if config.db is not None else None
-    rlog = RddlsimLog(RddlsimLog.default_path(config.log_dir, port)) if config.log_dir is not None else None
+    rlog = (
+        RddlsimLog(RddlsimLog.default_path(config.log_dir, port))
+        if config.log_dir is not None
+        else None
+    )
     transcripts: Callable[[int, dict[str, Any]], Any] | None = None
     if config.transcripts is not None:
         folder = Path(config.transcripts)
@@ -113,7 +122,9 @@ async def serve(
     return svc
 
 
-async def play_connection(svc: Services, stream: trio.SocketStream, session_id: int | None = None) -> Session:
+async def play_connection(
+    svc: Services, stream: trio.SocketStream, session_id: int | None = None
+) -> Session:
     """Play the session of one accepted connection to its end (numbered by
     `svc` unless `session_id` is given)."""
     try:

@@ -24,19 +24,69 @@ from .workers import WorkerError, default_workers, serve_with_workers, supported
 
 @click.command(context_settings={"help_option_names": ["-h", "--help"]})
 @click.argument("rddl_dir", type=click.Path(exists=True, path_type=Path))
-@click.option("--host", default="127.0.0.1", show_default=True, help="Address to bind (rddlsim binds every interface; we bind loopback unless told).")
-@click.option("--port", default=DEFAULT_PORT, show_default=True, help="TCP port; 0 picks a free one.")
+@click.option(
+    "--host",
+    default="127.0.0.1",
+    show_default=True,
+    help="Address to bind (rddlsim binds every interface; we bind loopback unless told).",
+)
+@click.option(
+    "--port", default=DEFAULT_PORT, show_default=True, help="TCP port; 0 picks a free one."
+)
 @click.option("--rounds", default=DEFAULT_ROUNDS, show_default=True, help="Rounds per session.")
 @click.option("--seed", default=0, show_default=True, help="Session k uses seed + k - 1.")
-@click.option("--timeout", default=DEFAULT_TIMEOUT, show_default=True, type=float, help="Session budget in seconds; 0 = not enforced.")
-@click.option("--individual-session", is_flag=True, help="Serve one connection, then exit (exit code 1 if it failed).")
-@click.option("--monitor-execution", is_flag=True, help="Round-requests without execute-policy yes play uncounted practice rounds.")
-@click.option("--log-dir", type=click.Path(file_okay=False, path_type=Path), help="Write rddlsim's log file logs-PORT.log here.")
-@click.option("--db", type=click.Path(dir_okay=False, path_type=Path), help="SQLite result database (sessions, rounds, steps).")
-@click.option("--transcripts", type=click.Path(file_okay=False, path_type=Path), help="Record every message of every session here (JSON lines).")
-@click.option("--idle-timeout", type=float, default=None, help="Close a session whose client is silent this many seconds (off by default, as rddlsim).")
-@click.option("--busy-poll-us", type=float, default=DEFAULT_BUSY_POLL_US, show_default=True, help="Microseconds a lone session polls for its client's answer before it sleeps; 0 = off (always off with one CPU).")
-@click.option("--workers", default="auto", show_default=True, metavar="N|auto", help="Processes that play the sessions (one listener hands each connection to the least busy); auto = one per core (one process on one core, with --individual-session, or where workers cannot run). Sessions are numbered and seeded as with one.")
+@click.option(
+    "--timeout",
+    default=DEFAULT_TIMEOUT,
+    show_default=True,
+    type=float,
+    help="Session budget in seconds; 0 = not enforced.",
+)
+@click.option(
+    "--individual-session",
+    is_flag=True,
+    help="Serve one connection, then exit (exit code 1 if it failed).",
+)
+@click.option(
+    "--monitor-execution",
+    is_flag=True,
+    help="Round-requests without execute-policy yes play uncounted practice rounds.",
+)
+@click.option(
+    "--log-dir",
+    type=click.Path(file_okay=False, path_type=Path),
+    help="Write rddlsim's log file logs-PORT.log here.",
+)
+@click.option(
+    "--db",
+    type=click.Path(dir_okay=False, path_type=Path),
+    help="SQLite result database (sessions, rounds, steps).",
+)
+@click.option(
+    "--transcripts",
+    type=click.Path(file_okay=False, path_type=Path),
+    help="Record every message of every session here (JSON lines).",
+)
+@click.option(
+    "--idle-timeout",
+    type=float,
+    default=None,
+    help="Close a session whose client is silent this many seconds (off by default, as rddlsim).",
+)
+@click.option(
+    "--busy-poll-us",
+    type=float,
+    default=DEFAULT_BUSY_POLL_US,
+    show_default=True,
+    help="Microseconds a lone session polls for its client's answer before it sleeps; 0 = off (always off with one CPU).",
+)
+@click.option(
+    "--workers",
+    default="auto",
+    show_default=True,
+    metavar="N|auto",
+    help="Processes that play the sessions (one listener hands each connection to the least busy); auto = one per core (one process on one core, with --individual-session, or where workers cannot run). Sessions are numbered and seeded as with one.",
+)
 @click.option("-q", "--quiet", is_flag=True, help="Log warnings only.")
 def main(
     rddl_dir: Path,
@@ -101,14 +151,19 @@ def main(
     async def run() -> str | None:
         async with trio.open_nursery() as nursery:
             if n_workers > 1:
-                bound = await nursery.start(_serve_workers_and_stop, config, str(rddl_dir), n_workers, nursery.cancel_scope)
+                bound = await nursery.start(
+                    _serve_workers_and_stop, config, str(rddl_dir), n_workers, nursery.cancel_scope
+                )
             else:
                 bound = await nursery.start(_serve_and_stop, config, registry, nursery.cancel_scope)
             _listening[0] = True
             click.echo(f"listening on {host}:{bound}", err=False)
             sys.stdout.flush()
-            click.echo(f"serving {len(registry)} instance(s): {', '.join(registry.names()[:8])}"
-                       + (" ..." if len(registry) > 8 else ""), err=True)
+            click.echo(
+                f"serving {len(registry)} instance(s): {', '.join(registry.names()[:8])}"
+                + (" ..." if len(registry) > 8 else ""),
+                err=True,
+            )
         return _last_status[0]
 
     try:
@@ -165,25 +220,36 @@ def _workers(value: str, individual_session: bool) -> int:
     try:
         n = int(value)
     except ValueError:
-        raise click.BadParameter(f"{value!r} is not a number or 'auto'", param_hint="--workers") from None
+        raise click.BadParameter(
+            f"{value!r} is not a number or 'auto'", param_hint="--workers"
+        ) from None
     if n < 1:
         raise click.BadParameter("must be at least 1", param_hint="--workers")
     if n > 1 and individual_session:
-        raise click.BadParameter("--individual-session plays one session: use one worker", param_hint="--workers")
+        raise click.BadParameter(
+            "--individual-session plays one session: use one worker", param_hint="--workers"
+        )
     if n > 1 and (why := supported()) is not None:
         raise click.BadParameter(why, param_hint="--workers")
     return n
 
 
 async def _serve_workers_and_stop(
-    config: ServerConfig, path: str, n: int, outer: trio.CancelScope, task_status: trio.TaskStatus[int] = trio.TASK_STATUS_IGNORED
+    config: ServerConfig,
+    path: str,
+    n: int,
+    outer: trio.CancelScope,
+    task_status: trio.TaskStatus[int] = trio.TASK_STATUS_IGNORED,
 ) -> None:
     await serve_with_workers(config, [path], n, task_status=task_status, handle_signals=True)
     outer.cancel()
 
 
 async def _serve_and_stop(
-    config: ServerConfig, registry: Registry, outer: trio.CancelScope, task_status: trio.TaskStatus[int] = trio.TASK_STATUS_IGNORED
+    config: ServerConfig,
+    registry: Registry,
+    outer: trio.CancelScope,
+    task_status: trio.TaskStatus[int] = trio.TASK_STATUS_IGNORED,
 ) -> None:
     svc = await serve(config, registry, task_status=task_status, handle_signals=True)
     _last_status[0] = svc.last_status

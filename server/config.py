@@ -27,7 +27,9 @@ class ServerConfig:
     log_dir: Path | None = None
     db: Path | None = None
     transcripts: Path | None = None
-    idle_timeout: float | None = None  # seconds a client may stay silent; None = forever, as rddlsim
+    idle_timeout: float | None = (
+        None  # seconds a client may stay silent; None = forever, as rddlsim
+    )
     max_message_size: int = 10 * 1024 * 1024
     # microseconds a lone session polls its socket for the client's answer
     # before it sleeps in the event loop (see _Channel._poll_briefly); 0 = never.

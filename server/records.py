@@ -140,7 +140,7 @@ class RddlsimLog:
             end = body.find(b"?>")
             if end < 0:
                 raise ValueError("unterminated XML declaration in log message")
-            body = body[end + 2:]
+            body = body[end + 2 :]
         body = body.strip(b" \t\r\n")
         if b"\n" in body or b"\r" in body:
             # rddlsim's documents never hold a line break; one would split the document
@@ -278,7 +278,7 @@ def read_transcript(path: str | Path) -> tuple[dict[str, Any], list[dict[str, An
             raise ValueError(f"{path}:{lineno}: expected a JSON object")
         if lineno == 1:
             if set(obj) != {"meta"} or not isinstance(obj["meta"], dict):
-                raise ValueError(f"{path}:1: the first line must be {{\"meta\": {{...}}}}")
+                raise ValueError(f'{path}:1: the first line must be {{"meta": {{...}}}}')
             meta = obj["meta"]
         else:
             records.append(obj)

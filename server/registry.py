@@ -113,7 +113,11 @@ class Instance:
         sent = codec.turn_fluents(state, observation)
         xml = None if sent is None else self.fluents_writer(sent).write([t[2] for t in sent])
         # object arrays hold pointers, not values: never a key
-        if key is not None and self._turn_chars < TURN_CACHE_CHARS and all(c != "O" for c, _ in key):
+        if (
+            key is not None
+            and self._turn_chars < TURN_CACHE_CHARS
+            and all(c != "O" for c, _ in key)
+        ):
             self._turns[key] = (sent, xml)
             self._turn_chars += len(xml or "") + 64
         return sent, xml
@@ -156,7 +160,9 @@ class Registry:
                     broken[res.file] = res.diagnostics[0].render()
                 continue
             if res.model is None or not res.ok:
-                broken[res.name] = res.diagnostics[0].render() if res.diagnostics else "does not check"
+                broken[res.name] = (
+                    res.diagnostics[0].render() if res.diagnostics else "does not check"
+                )
                 continue
             instances[res.name] = Instance(res.name, res.model, build_task(res.model))
         for name, why in broken.items():
@@ -172,7 +178,9 @@ class Registry:
     def get(self, name: str) -> Instance:
         """The instance called `name`; `UnknownInstance` says why not."""
         if not _NAME.match(name) or name in (".", ".."):
-            raise UnknownInstance(f"problem-name {name!r} is not an instance name (it looks like a path or has odd characters)")
+            raise UnknownInstance(
+                f"problem-name {name!r} is not an instance name (it looks like a path or has odd characters)"
+            )
         inst = self.instances.get(name)
         if inst is None:
             why = self.broken.get(name)

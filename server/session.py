@@ -181,7 +181,9 @@ class _Channel:
                     self._unwaited = 0
                     data = await self._receive_some()
             except trio.TooSlowError:
-                raise SessionDropped(f"client silent for {self.idle_timeout:g} s (--idle-timeout)") from None
+                raise SessionDropped(
+                    f"client silent for {self.idle_timeout:g} s (--idle-timeout)"
+                ) from None
             except (trio.BrokenResourceError, trio.ClosedResourceError, OSError) as err:
                 raise SessionDropped(f"connection lost: {err}") from None
             self._record_inbound(data)
@@ -249,7 +251,9 @@ class _Channel:
     async def send(self, msg: Any) -> None:
         await self._emit(self.conn.send(msg), type(msg).__name__)
 
-    async def send_turn(self, turn_num: int, time_left: float, reward: float, fluents_xml: str | None) -> None:
+    async def send_turn(
+        self, turn_num: int, time_left: float, reward: float, fluents_xml: str | None
+    ) -> None:
         """A turn whose observed fluents are already written (see
         `ServerConnection.send_turn`)."""
         await self._emit(self.conn.send_turn(turn_num, time_left, reward, fluents_xml), "Turn")
@@ -281,7 +285,9 @@ class _Round:
 class Session:
     """One connection, from session-request to session-end."""
 
-    def __init__(self, services: Services, stream: trio.abc.Stream, peer: str, session_id: int | None = None):
+    def __init__(
+        self, services: Services, stream: trio.abc.Stream, peer: str, session_id: int | None = None
+    ):
         self.services = services
         self.config = services.config
         self.stream = stream
@@ -305,7 +311,10 @@ class Session:
         return _time_left_ms(self.start, self.config.time_allowed_ms)
 
     def _out_of_time(self) -> bool:
-        return self.config.enforce_timeout and (time.monotonic() - self.start) * 1000.0 > self.config.time_allowed_ms
+        return (
+            self.config.enforce_timeout
+            and (time.monotonic() - self.start) * 1000.0 > self.config.time_allowed_ms
+        )
 
     def describe(self) -> str:
         return f"session {self.id} ({self.peer}, client {self.client_name!r}, instance {self.instance_name!r})"
@@ -322,7 +331,9 @@ class Session:
                 continue
             if isinstance(event, types):
                 return event
-            raise SessionDropped(f"expected {' or '.join(t.__name__ for t in types)}, got {type(event).__name__}")
+            raise SessionDropped(
+                f"expected {' or '.join(t.__name__ for t in types)}, got {type(event).__name__}"
+            )
 
     # -- the session
 
@@ -365,9 +376,22 @@ class Session:
             return
         now = time.time()
         if self.round_db_id is not None:
-            store.end_round(self.round_db_id, reward=self._round.reward, turns_used=self._round.turns, status=status, ended_at=now)
+            store.end_round(
+                self.round_db_id,
+                reward=self._round.reward,
+                turns_used=self._round.turns,
+                status=status,
+                ended_at=now,
+            )
             self.round_db_id = None
-        store.end_session(self.db_id, total_reward=self.total_reward, rounds_used=self.rounds_used, status=status, reason=reason, ended_at=now)
+        store.end_session(
+            self.db_id,
+            total_reward=self.total_reward,
+            rounds_used=self.rounds_used,
+            status=status,
+            reason=reason,
+            ended_at=now,
+        )
         self.db_id = None
 
     async def _play(self) -> None:
@@ -381,7 +405,9 @@ class Session:
         self.client_name = request.client_name
         self.instance_name = request.problem_name
         if request.input_language not in (None, "rddl"):
-            raise SessionDropped(f"input-language {request.input_language!r} is not served (only rddl)")
+            raise SessionDropped(
+                f"input-language {request.input_language!r} is not served (only rddl)"
+            )
         try:
             instance = svc.registry.get(request.problem_name)
         except UnknownInstance as err:
@@ -390,19 +416,26 @@ class Session:
         seed = cfg.seed + self.id - 1
         rng = np.random.default_rng(seed)
         if svc.transcripts is not None:
-            self.channel.start_transcript(svc.transcripts(
-                self.id,
-                {
-                    "instance": instance.name,
-                    "client": self.client_name,
-                    "session_id": self.id,
-                    "seed": seed,
-                    "no_header": request.no_header,
-                    "server": "ippc rddl-server",
-                },
-            ))
+            self.channel.start_transcript(
+                svc.transcripts(
+                    self.id,
+                    {
+                        "instance": instance.name,
+                        "client": self.client_name,
+                        "session_id": self.id,
+                        "seed": seed,
+                        "no_header": request.no_header,
+                        "server": "ippc rddl-server",
+                    },
+                )
+            )
         await self.channel.send(
-            SessionInit(task=instance.task, session_id=self.id, num_rounds=cfg.rounds, time_allowed=cfg.time_allowed_ms)
+            SessionInit(
+                task=instance.task,
+                session_id=self.id,
+                num_rounds=cfg.rounds,
+                time_allowed=cfg.time_allowed_ms,
+            )
         )
         if svc.store is not None:
             self.db_id = svc.store.start_session(
@@ -441,26 +474,52 @@ class Session:
         status = "timeout" if out_of_time else "finished"
         self.status = status
         if svc.store is not None and self.db_id is not None:
-            svc.store.end_session(self.db_id, total_reward=self.total_reward, rounds_used=counted, status=status, reason=None, ended_at=time.time())
+            svc.store.end_session(
+                self.db_id,
+                total_reward=self.total_reward,
+                rounds_used=counted,
+                status=status,
+                reason=None,
+                ended_at=time.time(),
+            )
             self.db_id = None
         await self.channel.send(end)
         self._log_document(encode(end))
-        log.info("%s ended: total reward %s over %d rounds (%s)", self.describe(), self.total_reward, counted, status)
+        log.info(
+            "%s ended: total reward %s over %d rounds (%s)",
+            self.describe(),
+            self.total_reward,
+            counted,
+            status,
+        )
 
     def _log_document(self, doc: bytes) -> None:
         if self.services.rddlsim_log is not None:
             self.services.rddlsim_log.message(doc)
 
     async def _play_round(
-        self, instance: Instance, sim: Simulator, codec: WireCodec, rng: np.random.Generator, rnd: _Round
+        self,
+        instance: Instance,
+        sim: Simulator,
+        codec: WireCodec,
+        rng: np.random.Generator,
+        rnd: _Round,
     ) -> bool:
         """One round; returns whether the session ran out of time."""
         cfg = self.config
         store = self.services.store
         self._round = rnd
-        await self.channel.send(RoundInit(round_num=rnd.number, round_left=cfg.rounds - rnd.number, time_left=float(self._ms())))
+        await self.channel.send(
+            RoundInit(
+                round_num=rnd.number,
+                round_left=cfg.rounds - rnd.number,
+                time_left=float(self._ms()),
+            )
+        )
         if store is not None and self.db_id is not None:
-            self.round_db_id = store.start_round(self.db_id, round_num=rnd.number, counted=rnd.counted, started_at=time.time())
+            self.round_db_id = store.start_round(
+                self.db_id, round_num=rnd.number, counted=rnd.counted, started_at=time.time()
+            )
         state: State = sim.initial_state(1)
         observation: dict[str, np.ndarray] | None = None
         channel = self.channel
@@ -492,7 +551,12 @@ class Session:
                 if cfg.individual_session:
                     # rddlsim exits (code 1) here in individual-session mode
                     raise SessionDropped(f"illegal actions in individual-session mode: {why}")
-                log.info("%s round %d: illegal actions end the round: %s", self.describe(), rnd.number, why)
+                log.info(
+                    "%s round %d: illegal actions end the round: %s",
+                    self.describe(),
+                    rnd.number,
+                    why,
+                )
                 rnd.status = "illegal-action"
                 break
             try:
@@ -504,7 +568,9 @@ class Session:
                 else:
                     step = sim.step(state, arrays, rng, check=invariants)
             except SimulationError as err:
-                raise SessionDropped(f"simulation error in round {rnd.number}, turn {rnd.turns + 1}: {err}") from None
+                raise SessionDropped(
+                    f"simulation error in round {rnd.number}, turn {rnd.turns + 1}: {err}"
+                ) from None
             reward = float(step.reward[0])
             rnd.immediate = reward
             rnd.reward += cur_discount * reward
@@ -542,7 +608,13 @@ class Session:
         )
         # recorded before the client hears of it, like every step
         if store is not None and self.round_db_id is not None:
-            store.end_round(self.round_db_id, reward=rnd.reward, turns_used=rnd.turns, status=rnd.status, ended_at=time.time())
+            store.end_round(
+                self.round_db_id,
+                reward=rnd.reward,
+                turns_used=rnd.turns,
+                status=rnd.status,
+                ended_at=time.time(),
+            )
             self.round_db_id = None
         await self.channel.send(end)
         self._log_document(encode(end))
@@ -559,7 +631,9 @@ class Session:
             try:
                 value = parse_value(str(a.value), value_kind(model, p))
             except ValueError:
-                raise SessionDropped(f"action {a.name!r}: value {a.value!r} is not a {p.range}") from None
+                raise SessionDropped(
+                    f"action {a.name!r}: value {a.value!r} is not a {p.range}"
+                ) from None
             typed.append((a.name, tuple(a.args), value))
         try:
             return codec.actions_from(typed)

@@ -118,8 +118,9 @@ def _json_default(value: object) -> object:
         plain = item()
         if isinstance(plain, bool | int | float | str):
             return plain
-    raise TypeError(f"fluent value {value!r} of type {type(value).__name__} is not "
-                    "bool, int, float or str")
+    raise TypeError(
+        f"fluent value {value!r} of type {type(value).__name__} is not bool, int, float or str"
+    )
 
 
 _ENCODER = json.JSONEncoder(separators=(",", ":"), default=_json_default)
@@ -162,7 +163,9 @@ class ResultStore:
     how long a write waits for another process that holds the database's write lock.
     """
 
-    def __init__(self, path: str | Path, *, busy_timeout_ms: int = 5000, owner: str | None = None) -> None:
+    def __init__(
+        self, path: str | Path, *, busy_timeout_ms: int = 5000, owner: str | None = None
+    ) -> None:
         self.path = str(path)
         #: Token stored with every session this store starts (see ``interrupt_open``);
         #: a caller may name it, as rddl-server does for each of its worker processes so
@@ -281,9 +284,16 @@ class ResultStore:
             " time_allowed_ms, peer, no_header, started_at, owner)"
             " VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
             (
-                int(server_session_id), str(instance), str(client_name), int(seed),
-                int(num_rounds), _real(time_allowed_ms), str(peer), int(bool(no_header)),
-                _real(started_at), self.owner,
+                int(server_session_id),
+                str(instance),
+                str(client_name),
+                int(seed),
+                int(num_rounds),
+                _real(time_allowed_ms),
+                str(peer),
+                int(bool(no_header)),
+                _real(started_at),
+                self.owner,
             ),
         )
 
@@ -320,8 +330,13 @@ class ResultStore:
             "INSERT INTO steps (round_id, turn_num, state, actions, reward, turn_sent_at,"
             " actions_received_at) VALUES (?, ?, ?, ?, ?, ?, ?)",
             (
-                int(round_), int(turn_num), encode_fluents(state), encode_fluents(actions),
-                _real(reward), _real(turn_sent_at), _real(actions_received_at),
+                int(round_),
+                int(turn_num),
+                encode_fluents(state),
+                encode_fluents(actions),
+                _real(reward),
+                _real(turn_sent_at),
+                _real(actions_received_at),
             ),
         )
 
@@ -365,23 +380,31 @@ class ResultStore:
         session raises ``KeyError``.
         """
         if status not in SESSION_STATUSES:
-            raise ValueError(
-                f"session status {status!r} is not one of {sorted(SESSION_STATUSES)}"
-            )
+            raise ValueError(f"session status {status!r} is not one of {sorted(SESSION_STATUSES)}")
         with self._tx() as cur:
             cur.execute(
                 "UPDATE sessions SET total_reward = ?, rounds_used = ?, status = ?, reason = ?,"
                 " ended_at = ? WHERE id = ? AND status = 'open'",
-                (_opt_real(total_reward), int(rounds_used), status, reason, _real(ended_at),
-                 int(session)),
+                (
+                    _opt_real(total_reward),
+                    int(rounds_used),
+                    status,
+                    reason,
+                    _real(ended_at),
+                    int(session),
+                ),
             )
             if cur.rowcount == 0:
                 self._already_closed(cur, "sessions", session, status)
                 return
             n = self._close_open_rounds(cur, "session_id = ?", (int(session),), status, ended_at)
             if n:
-                log.warning("session %d ended (%s) with %d round(s) still open; closed them",
-                            session, status, n)
+                log.warning(
+                    "session %d ended (%s) with %d round(s) still open; closed them",
+                    session,
+                    status,
+                    n,
+                )
 
     def interrupt_open(self, reason: str, ended_at: float, *, every_owner: bool = False) -> int:
         """Mark the sessions still open, and their open rounds, as ``interrupted`` with
@@ -393,8 +416,11 @@ class ResultStore:
         after a crash when no other server is running.
         """
         with self._tx() as cur:
-            where, params = ("status = 'open'", ()) if every_owner else (
-                "status = 'open' AND owner = ?", (self.owner,))
+            where, params = (
+                ("status = 'open'", ())
+                if every_owner
+                else ("status = 'open' AND owner = ?", (self.owner,))
+            )
             ids = [r[0] for r in cur.execute(f"SELECT id FROM sessions WHERE {where}", params)]
             cur.execute(
                 "UPDATE sessions SET status = 'interrupted', reason = ?, ended_at = ?"
@@ -475,6 +501,8 @@ class ResultStore:
         with self._lock:
             if round_ is None:
                 return int(self._conn.execute("SELECT count(*) FROM steps").fetchone()[0])
-            return int(self._conn.execute(
-                "SELECT count(*) FROM steps WHERE round_id = ?", (int(round_),)
-            ).fetchone()[0])
+            return int(
+                self._conn.execute(
+                    "SELECT count(*) FROM steps WHERE round_id = ?", (int(round_),)
+                ).fetchone()[0]
+            )

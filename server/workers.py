@@ -164,7 +164,12 @@ class WorkerPool:
         }
         try:
             w.proc = subprocess.Popen(
-                [sys.executable, "-c", "from ippc.server.workers import worker_main; worker_main()", json.dumps(spec)],
+                [
+                    sys.executable,
+                    "-c",
+                    "from ippc.server.workers import worker_main; worker_main()",
+                    json.dumps(spec),
+                ],
                 pass_fds=(child.fileno(), self._count_file.fileno()),
                 stdin=subprocess.DEVNULL,
             )
@@ -213,10 +218,13 @@ class WorkerPool:
             if self.stopping:
                 return
             if not w.ready.is_set() and not w.deaths:
-                raise WorkerError(f"worker {w.index} exited ({_status(code)}) before it was ready; see its log above")
+                raise WorkerError(
+                    f"worker {w.index} exited ({_status(code)}) before it was ready; see its log above"
+                )
             # (exit code 0: it was stopped by a signal of its own, not by ours)
             (log.warning if code == 0 else log.error)(
-                "%r exited (%s) with %d open session(s) %s", w, _status(code), len(lost), lost)
+                "%r exited (%s) with %d open session(s) %s", w, _status(code), len(lost), lost
+            )
             self._interrupt(w, f"worker process died ({_status(code)})")
             if not await self._restart(w):
                 return
@@ -230,7 +238,12 @@ class WorkerPool:
             now = time.monotonic()
             w.deaths = [t for t in w.deaths if now - t < RESPAWN_WINDOW] + [now]
             if len(w.deaths) >= MAX_RAPID_DEATHS:
-                log.error("worker %d died %d times in %g s: not restarted", w.index, len(w.deaths), RESPAWN_WINDOW)
+                log.error(
+                    "worker %d died %d times in %g s: not restarted",
+                    w.index,
+                    len(w.deaths),
+                    RESPAWN_WINDOW,
+                )
                 w.given_up = True
                 if all(x.given_up for x in self.workers):
                     raise WorkerError("every worker process died repeatedly; the server stops")
@@ -342,7 +355,10 @@ class WorkerPool:
         self.next_id += 1
         sid = self.next_id
         try:
-            for w in sorted((w for w in self.workers if w.alive and w.ready.is_set()), key=lambda w: (len(w.open), w.index)):
+            for w in sorted(
+                (w for w in self.workers if w.alive and w.ready.is_set()),
+                key=lambda w: (len(w.open), w.index),
+            ):
                 if await self._send(w, sid, sock.fileno()):
                     w.open.add(sid)
                     self._publish()
@@ -441,7 +457,11 @@ def worker_main() -> None:
 
 
 async def _worker(
-    config: ServerConfig, registry: Registry, ctrl: socket.socket, count: mmap.mmap, spec: dict[str, Any]
+    config: ServerConfig,
+    registry: Registry,
+    ctrl: socket.socket,
+    count: mmap.mmap,
+    spec: dict[str, Any],
 ) -> None:
     from .app import close_services, open_services, play_connection
 
@@ -470,7 +490,9 @@ async def _worker(
                 msg, fds = b"", []
             socks = [socket.socket(fileno=fd) for fd in fds]
             if not msg:
-                log.warning("the main process is gone: no new sessions; exiting when the open ones end")
+                log.warning(
+                    "the main process is gone: no new sessions; exiting when the open ones end"
+                )
                 return
             if msg[:1] != _START or len(msg) != 1 + _NUM.size or len(socks) != 1:
                 for s in socks:
@@ -479,7 +501,10 @@ async def _worker(
                     # a hand-over whose descriptor did not arrive (the table is
                     # full): the client sees its connection close; say it ended
                     sid = _NUM.unpack_from(msg, 1)[0]
-                    log.error("session %d: its connection did not arrive (too many open files?); dropped", sid)
+                    log.error(
+                        "session %d: its connection did not arrive (too many open files?); dropped",
+                        sid,
+                    )
                     _tell(ctrl, _END + _NUM.pack(sid))
                 else:
                     log.error("unexpected message from the main process %r", msg[:20])
@@ -519,12 +544,16 @@ def _tell(ctrl: socket.socket, msg: bytes) -> None:
 
 
 def _config_to_json(config: ServerConfig) -> dict[str, Any]:
-    return {k: (str(v) if isinstance(v, Path) else v) for k, v in dataclasses.asdict(config).items()}
+    return {
+        k: (str(v) if isinstance(v, Path) else v) for k, v in dataclasses.asdict(config).items()
+    }
 
 
 def _config_from_json(data: dict[str, Any]) -> ServerConfig:
     paths = {"log_dir", "db", "transcripts"}
-    fields: dict[str, Any] = {k: (Path(v) if k in paths and v is not None else v) for k, v in data.items()}
+    fields: dict[str, Any] = {
+        k: (Path(v) if k in paths and v is not None else v) for k, v in data.items()
+    }
     return ServerConfig(**fields)
 
 
@@ -539,4 +568,11 @@ def _status(code: int | None) -> str:
     return f"exit code {code}"
 
 
-__all__ = ["WorkerError", "WorkerPool", "default_workers", "serve_with_workers", "supported", "worker_main"]
+__all__ = [
+    "WorkerError",
+    "WorkerPool",
+    "default_workers",
+    "serve_with_workers",
+    "supported",
+    "worker_main",
+]

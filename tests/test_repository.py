@@ -12,7 +12,9 @@ REPO = Path(__file__).resolve().parents[1]
 def _code_files() -> list[Path]:
     files = [REPO / "Makefile", *sorted((REPO / ".ci").glob("*"))]
     for folder in ("tests", "bench"):
-        files += [p for p in sorted((REPO / folder).rglob("*")) if p.suffix in {".py", ".sh", ".toml"}]
+        files += [
+            p for p in sorted((REPO / folder).rglob("*")) if p.suffix in {".py", ".sh", ".toml"}
+        ]
     return [p for p in files if p.is_file() and p != Path(__file__)]
 
 

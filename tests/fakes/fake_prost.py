@@ -347,9 +347,7 @@ def main(argv: list[str]) -> int:
         nonlocal state
         if text_of(node, "time-left") is None or text_of(node, "immediate-reward") is None:
             abort("Error: turn response message insufficient.")
-        values = [
-            text_of(f, "fluent-value") or "" for f in node.findall("observed-fluent")
-        ]
+        values = [text_of(f, "fluent-value") or "" for f in node.findall("observed-fluent")]
         if values:  # a POMDP's <no-observed-fluents/> leaves the state as it was
             state = ["1" if v == "true" else "0" if v == "false" else v for v in values]
         return atof(text_of(node, "immediate-reward") or "0")
@@ -401,7 +399,9 @@ def main(argv: list[str]) -> int:
                 finish_step(names, atof(reward_text or "0"))
                 out()
                 out(SEPARATOR)
-                out(f">>> END OF ROUND {current + 1} -- REWARD RECEIVED: {fmt(atof(round_text or '0'))}")
+                out(
+                    f">>> END OF ROUND {current + 1} -- REWARD RECEIVED: {fmt(atof(round_text or '0'))}"
+                )
                 out(SMALL_SEPARATOR)
                 out("THTS round statistics:")
                 out("  Number of reward lock states: 0")

@@ -17,7 +17,10 @@ class GreedyPlanner(Planner):
         actions = sim.legal_actions(obs.state)  # every legal joint action, stacked
         k = len(next(iter(actions.values())))
         batch = obs.state[[0] * (k * n)]  # the state, k * n times
-        step = sim.step(batch, {a: v.repeat(n, axis=0) for a, v in actions.items()},
-                        np.random.default_rng(self.session.seed))
+        step = sim.step(
+            batch,
+            {a: v.repeat(n, axis=0) for a, v in actions.items()},
+            np.random.default_rng(self.session.seed),
+        )
         best = int(step.reward.reshape(k, n).mean(axis=1).argmax())
         return WireCodec(sim).actions(actions, index=best)

@@ -64,7 +64,9 @@ def observe(codec: WireCodec, state: State | None, turn: int, horizon: int = 40)
     )
 
 
-def play(planner: RandomPlanner, info: SessionInfo, steps: int, step_sim: bool = True) -> list[list[WireFluent]]:
+def play(
+    planner: RandomPlanner, info: SessionInfo, steps: int, step_sim: bool = True
+) -> list[list[WireFluent]]:
     """Run the planner for `steps` turns; every answer must be legal where
     it is played (as the server checks it: WireCodec.actions_from + check)."""
     sim = info.simulator
@@ -94,7 +96,9 @@ def test_noop(models: dict[str, Model]) -> None:
     assert planner.session is info
     assert planner.act(observe(WireCodec(info.simulator), info.simulator.initial_state(1), 1)) == []
     assert planner.act(observe(WireCodec(info.simulator), None, 1)) == []
-    with pytest.raises(PlannerError, match=r"planner 'noop' has no option 'seed' \(valid options: none\)"):
+    with pytest.raises(
+        PlannerError, match=r"planner 'noop' has no option 'seed' \(valid options: none\)"
+    ):
         NoopPlanner(seed="1")
 
 
@@ -162,9 +166,13 @@ def test_random_pomdp_uses_the_initial_state(models: dict[str, Model], name: str
 
 
 def test_random_options_and_misuse(models: dict[str, Model]) -> None:
-    with pytest.raises(PlannerError, match="planner 'random': option 'seed' must be an integer, got 'x1'"):
+    with pytest.raises(
+        PlannerError, match="planner 'random': option 'seed' must be an integer, got 'x1'"
+    ):
         RandomPlanner(seed="x1")
-    with pytest.raises(PlannerError, match=r"planner 'random' has no option 'sed' \(valid options: seed\)"):
+    with pytest.raises(
+        PlannerError, match=r"planner 'random' has no option 'sed' \(valid options: seed\)"
+    ):
         RandomPlanner(sed="1")
     assert RandomPlanner(seed=" 42 ").seed == 42
     with pytest.raises(PlannerError, match="before start_session"):

@@ -79,9 +79,16 @@ def fake_pids(log: Path) -> tuple[int, int]:
     raise AssertionError(f"no pids in {log}: {log.read_text()!r}")
 
 
-def run(planner: ProstPlanner, server: ReplayServer, instance: str, log: Path, **kw: object) -> ExternalResult:
+def run(
+    planner: ProstPlanner, server: ReplayServer, instance: str, log: Path, **kw: object
+) -> ExternalResult:
     args: dict[str, object] = dict(
-        host="127.0.0.1", port=server.port, instance=instance, client_name=None, timeout=20.0, log_path=log
+        host="127.0.0.1",
+        port=server.port,
+        instance=instance,
+        client_name=None,
+        timeout=20.0,
+        log_path=log,
     )
     args.update(kw)
     return planner.run_session(**args)  # type: ignore[arg-type]
@@ -118,10 +125,18 @@ def test_parse_errors_and_partial_output() -> None:
 
 def test_command_line_and_config() -> None:
     assert prost_command("/p/search", "inst", "127.0.0.1", 2323) == [
-        "/p/search", "inst", "-h", "127.0.0.1", "-p", "2323", DEFAULT_CONFIG,
+        "/p/search",
+        "inst",
+        "-h",
+        "127.0.0.1",
+        "-p",
+        "2323",
+        DEFAULT_CONFIG,
     ]
     assert prost_command("s", "i", "h", 1, "[Prost -se [IPC2011]]", "-ipc2018 1")[-3:] == [
-        "--parser-options", "-ipc2018 1", "[Prost -se [IPC2011]]",
+        "--parser-options",
+        "-ipc2018 1",
+        "[Prost -se [IPC2011]]",
     ]
     assert check_config("  [Prost -s 1 -se [IPC2014]] ") == "[Prost -s 1 -se [IPC2014]]"
     for bad in ("Prost -se [IPC2014]", "[Prost -se [IPC2014]", "[A] [B]", "[Prost]]"):
@@ -161,7 +176,9 @@ def test_missing_and_broken_binary(tmp_path: Path) -> None:
 
 
 def test_bad_options(prost_dir: Path) -> None:
-    with pytest.raises(PlannerError, match=r"no option 'timeout' \(valid options: binary, config, "):
+    with pytest.raises(
+        PlannerError, match=r"no option 'timeout' \(valid options: binary, config, "
+    ):
         ProstPlanner(binary=str(prost_dir / "search"), timeout="3")
     with pytest.raises(PlannerError, match="'grace' must be a number >= 0"):
         ProstPlanner(binary=str(prost_dir / "search"), grace="-1")
@@ -180,13 +197,19 @@ def test_bad_options(prost_dir: Path) -> None:
 
 @pytest.mark.parametrize("instance", INSTANCES)
 def test_replayed_session_bytes_and_result(
-    prost_transcripts: Path, prost_dir: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, instance: str
+    prost_transcripts: Path,
+    prost_dir: Path,
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    instance: str,
 ) -> None:
     """The fake sends exactly PROST's bytes of the recorded session and
     prints PROST's output, from which the launcher reads the results."""
     script = load_recording(prost_transcripts / f"{instance}.jsonl.gz")
     actions = tmp_path / "actions.txt"
-    actions.write_text("\n".join(recorded_actions(prost_transcripts / f"{instance}.prost-stdout.txt.gz")) + "\n")
+    actions.write_text(
+        "\n".join(recorded_actions(prost_transcripts / f"{instance}.prost-stdout.txt.gz")) + "\n"
+    )
     monkeypatch.setenv("FAKE_PROST_ACTIONS_FILE", str(actions))
     planner = ProstPlanner(binary=str(prost_dir / "search"), grace="0.5")
     with ReplayServer(script) as server:
@@ -226,7 +249,9 @@ def test_build_tree_layout_runs_in_a_temporary_folder(
         assert server.mismatch is None and server.finished
         assert result.error is None, result.error
         assert result.rounds == [312.25] and result.total_reward == 1619.75
-        assert result.log_path is not None and result.log_path.name.startswith("prost-sysadmin_inst_mdp__1-")
+        assert result.log_path is not None and result.log_path.name.startswith(
+            "prost-sysadmin_inst_mdp__1-"
+        )
         assert "Writing output for instance sysadmin_inst_mdp__1" in result.log_path.read_text()
     finally:
         if result.log_path is not None:
@@ -287,7 +312,12 @@ def test_no_server_listening(prost_dir: Path, tmp_path: Path) -> None:
         port = s.getsockname()[1]  # closed again: nobody listens there
     planner = ProstPlanner(binary=str(prost_dir / "search"), grace="0.5")
     result = planner.run_session(
-        host="127.0.0.1", port=port, instance="x", client_name=None, timeout=10, log_path=tmp_path / "l"
+        host="127.0.0.1",
+        port=port,
+        instance="x",
+        client_name=None,
+        timeout=10,
+        log_path=tmp_path / "l",
     )
     assert result.exit_code == 0
     assert result.error is not None and "couldn't connect to server" in result.error
@@ -306,16 +336,23 @@ def test_error_mode_prints_error_and_exits_zero(
         result = run(planner, server, "sysadmin_inst_mdp__1", tmp_path / "prost.log")
     assert result.exit_code == 0
     assert result.error is not None
-    assert "PROST reported an error: Error: search engine specification is insufficient" in result.error
+    assert (
+        "PROST reported an error: Error: search engine specification is insufficient"
+        in result.error
+    )
     assert "ERROR: Error: search engine" in (tmp_path / "prost.log").read_text()
 
 
-def test_config_without_search_engine(prost_transcripts: Path, prost_dir: Path, tmp_path: Path) -> None:
+def test_config_without_search_engine(
+    prost_transcripts: Path, prost_dir: Path, tmp_path: Path
+) -> None:
     script = short_session(load_recording(prost_transcripts / "sysadmin_inst_mdp__1.jsonl.gz"))[:2]
     planner = ProstPlanner(binary=str(prost_dir / "search"), config="[Prost -s 1]", grace="0.5")
     with ReplayServer(script, timeout=10) as server:
         result = run(planner, server, "sysadmin_inst_mdp__1", tmp_path / "prost.log")
-    assert result.error is not None and "search engine specification is insufficient" in result.error
+    assert (
+        result.error is not None and "search engine specification is insufficient" in result.error
+    )
 
 
 def test_crash_mode(prost_dir: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
@@ -370,7 +407,9 @@ def test_keyboard_interrupt_kills_the_group(
     assert not alive(pid) and not alive(child)
 
 
-def test_cancel_from_another_thread(prost_dir: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+def test_cancel_from_another_thread(
+    prost_dir: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
     monkeypatch.setenv("FAKE_PROST_MODE", "hang")
     planner = ProstPlanner(binary=str(prost_dir / "search"), grace="0.4")
     log = tmp_path / "prost.log"
@@ -389,7 +428,12 @@ def test_binary_removed_before_the_run(prost_dir: Path, tmp_path: Path) -> None:
     (prost_dir / "search").unlink()
     with pytest.raises(PlannerError, match="cannot start"):
         planner.run_session(
-            host="127.0.0.1", port=1, instance="x", client_name=None, timeout=5, log_path=tmp_path / "l"
+            host="127.0.0.1",
+            port=1,
+            instance="x",
+            client_name=None,
+            timeout=5,
+            log_path=tmp_path / "l",
         )
 
 

@@ -65,7 +65,10 @@ def test_builtins_by_name() -> None:
 
 
 def test_unknown_name_lists_the_known_ones() -> None:
-    with pytest.raises(PlannerError, match=r"unknown planner 'nosuch' \(known planners: exact, mcts, noop, prost, random"):
+    with pytest.raises(
+        PlannerError,
+        match=r"unknown planner 'nosuch' \(known planners: exact, mcts, noop, prost, random",
+    ):
         find_planner("nosuch")
 
 
@@ -95,17 +98,26 @@ def test_broken_entry_points(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setattr(
         importlib.metadata,
         "entry_points",
-        entry_points_with(("gone", "no_such_module_xyz:Planner"), ("odd", f"{__name__}:NOT_A_PLANNER")),
+        entry_points_with(
+            ("gone", "no_such_module_xyz:Planner"), ("odd", f"{__name__}:NOT_A_PLANNER")
+        ),
     )
-    with pytest.raises(PlannerError, match=r"planner 'gone': entry point 'no_such_module_xyz:Planner' cannot be loaded: ModuleNotFoundError"):
+    with pytest.raises(
+        PlannerError,
+        match=r"planner 'gone': entry point 'no_such_module_xyz:Planner' cannot be loaded: ModuleNotFoundError",
+    ):
         find_planner("gone")
-    with pytest.raises(PlannerError, match=r"planner 'odd' \(entry point '.*:NOT_A_PLANNER'\) is not a Planner"):
+    with pytest.raises(
+        PlannerError, match=r"planner 'odd' \(entry point '.*:NOT_A_PLANNER'\) is not a Planner"
+    ):
         find_planner("odd")
 
 
 def test_duplicate_name_prefers_ippcs_own(monkeypatch: pytest.MonkeyPatch) -> None:
     target = f"{__name__}:ThirdPartyPlanner"
-    monkeypatch.setattr(importlib.metadata, "entry_points", entry_points_with(("noop", target), ("x", target)))
+    monkeypatch.setattr(
+        importlib.metadata, "entry_points", entry_points_with(("noop", target), ("x", target))
+    )
     assert find_planner("noop") is NoopPlanner
     assert planner_names().count("noop") == 1
 
@@ -114,7 +126,15 @@ def test_duplicate_name_prefers_ippcs_own(monkeypatch: pytest.MonkeyPatch) -> No
 
 
 def test_option_readers() -> None:
-    p = ThirdPartyPlanner(**{"depth": " 12", "rate": "0.5", "verbose": "Off", "model-file": "~/m.rddl", "label": "a b"})
+    p = ThirdPartyPlanner(
+        **{
+            "depth": " 12",
+            "rate": "0.5",
+            "verbose": "Off",
+            "model-file": "~/m.rddl",
+            "label": "a b",
+        }
+    )
     assert p.option_values["model_file"] == "~/m.rddl"  # '-' and '_' are one
     assert p.int_option("depth") == 12
     assert p.float_option("rate") == 0.5

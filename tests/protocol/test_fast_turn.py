@@ -38,8 +38,13 @@ value = (
 grounding = st.tuples(name, st.lists(name, max_size=3).map(tuple))
 
 
-def general(turn_num: object, time_left: object, reward: object, fluents: tuple[Fluent, ...] | None,
-            declaration: bool = True) -> bytes:
+def general(
+    turn_num: object,
+    time_left: object,
+    reward: object,
+    fluents: tuple[Fluent, ...] | None,
+    declaration: bool = True,
+) -> bytes:
     return encode(Turn(turn_num, time_left, reward, fluents), declaration=declaration)  # type: ignore[arg-type]
 
 
@@ -65,8 +70,14 @@ def test_writer_and_encode_turn_equal_the_general_encoder(
 
 
 def test_writer_values_of_every_kind() -> None:
-    groundings = [("running", ("c1",)), ("running", ("c2",)), ("level", ()), ("mode", ("r1", "r2")),
-                  ("where", ("robot",)), ("count", ("x",))]
+    groundings = [
+        ("running", ("c1",)),
+        ("running", ("c2",)),
+        ("level", ()),
+        ("mode", ("r1", "r2")),
+        ("where", ("robot",)),
+        ("count", ("x",)),
+    ]
     writer = ObservedFluentsWriter(groundings)
     assert len(writer) == 6
     cases = [
@@ -82,9 +93,9 @@ def test_writer_values_of_every_kind() -> None:
     for values in cases:
         fluents = tuple(Fluent(n, a, v) for (n, a), v in zip(groundings, values, strict=True))
         for declaration in (True, False):
-            assert encode_turn(7, 1079999.0, 8.0, writer.write(values), declaration=declaration) == general(
-                7, 1079999.0, 8.0, fluents, declaration
-            )
+            assert encode_turn(
+                7, 1079999.0, 8.0, writer.write(values), declaration=declaration
+            ) == general(7, 1079999.0, 8.0, fluents, declaration)
 
 
 def test_no_observed_fluents_and_no_groundings() -> None:
@@ -105,17 +116,30 @@ def test_no_observed_fluents_and_no_groundings() -> None:
         (2**31 - 1, -0.0, math.inf),
     ],
 )
-def test_encode_turn_falls_back_for_other_number_types(turn_num: object, time_left: object, reward: object) -> None:
+def test_encode_turn_falls_back_for_other_number_types(
+    turn_num: object, time_left: object, reward: object
+) -> None:
     fluents = (Fluent("f", ("a",), True),)
     xml = ObservedFluentsWriter([("f", ("a",))]).write([True])
-    assert encode_turn(turn_num, time_left, reward, xml) == general(turn_num, time_left, reward, fluents)  # type: ignore[arg-type]
+    assert encode_turn(turn_num, time_left, reward, xml) == general(
+        turn_num, time_left, reward, fluents
+    )  # type: ignore[arg-type]
 
 
 @pytest.mark.parametrize(
     "turn_num, time_left, reward",
-    [(2**31, 1.0, 1.0), (-(2**31) - 1, 1.0, 1.0), ("5", 1.0, 1.0), (5.0, 1.0, 1.0), (1, "x", 1.0), (1, 1.0, None)],
+    [
+        (2**31, 1.0, 1.0),
+        (-(2**31) - 1, 1.0, 1.0),
+        ("5", 1.0, 1.0),
+        (5.0, 1.0, 1.0),
+        (1, "x", 1.0),
+        (1, 1.0, None),
+    ],
 )
-def test_encode_turn_refuses_what_encode_refuses(turn_num: object, time_left: object, reward: object) -> None:
+def test_encode_turn_refuses_what_encode_refuses(
+    turn_num: object, time_left: object, reward: object
+) -> None:
     with pytest.raises(LocalProtocolError) as general_error:
         general(turn_num, time_left, reward, ())
     with pytest.raises(LocalProtocolError) as fast_error:

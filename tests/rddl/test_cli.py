@@ -34,15 +34,24 @@ def test_check_verbose_shows_source_and_caret(tmp_path: Path) -> None:
     (tmp_path / "toy.rddl").write_text(DOMAIN.replace("on(?t) + 1", "onn(?t) + 1") + INSTANCE_2018)
     res = CliRunner().invoke(main, ["check", "-v", str(tmp_path)])
     assert "n(?t) = onn(?t) + 1;" in res.output
-    caret_line = res.output.splitlines()[res.output.splitlines().index(next(
+    caret_line = res.output.splitlines()[
+        res.output.splitlines().index(
+            next(line for line in res.output.splitlines() if line.strip() == "n(?t) = onn(?t) + 1;")
+        )
+        + 1
+    ]
+    source_line = next(
         line for line in res.output.splitlines() if line.strip() == "n(?t) = onn(?t) + 1;"
-    )) + 1]
-    source_line = next(line for line in res.output.splitlines() if line.strip() == "n(?t) = onn(?t) + 1;")
+    )
     assert caret_line.index("^") == source_line.index("onn")
 
 
 def test_check_json(tmp_path: Path) -> None:
-    (tmp_path / "toy.rddl").write_text(DOMAIN + INSTANCE_2018 + "instance broken { domain = nowhere; horizon = 1; discount = 1.0; }\n")
+    (tmp_path / "toy.rddl").write_text(
+        DOMAIN
+        + INSTANCE_2018
+        + "instance broken { domain = nowhere; horizon = 1; discount = 1.0; }\n"
+    )
     res = CliRunner().invoke(main, ["check", "--json", str(tmp_path)])
     assert res.exit_code == 1
     data = json.loads(res.output)

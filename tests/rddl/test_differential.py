@@ -142,13 +142,16 @@ OUR_BUGS: dict[str, str] = {}
 # so do we with check=False: the means are still compared.
 CANNOT_RUN: dict[str, str] = {
     # noop rolls no die in the roll phases
-    _C + "IPPC2018/ChromaticDice/instance1.rddl": r"constraint violated .*current-phase == @roll1 => \(forall_\{\?d : die\} roll\(\?d\)\); actions: noop",
+    _C
+    + "IPPC2018/ChromaticDice/instance1.rddl": r"constraint violated .*current-phase == @roll1 => \(forall_\{\?d : die\} roll\(\?d\)\); actions: noop",
     # exactly one of slew(...) or take-image each step
     _C + "IPPC2018/EarthObservation/instance1.rddl": r"constraint violated .*== 1; actions: noop",
     # either cash out or roll some die
-    _C + "IPPC2018/PushYourLuck/instance1.rddl": r"constraint violated .*cash-out \| \(exists_\{\?d : die\} roll\(\?d\)\); actions: noop",
+    _C
+    + "IPPC2018/PushYourLuck/instance1.rddl": r"constraint violated .*cash-out \| \(exists_\{\?d : die\} roll\(\?d\)\); actions: noop",
     # every ranger defends exactly one area
-    _C + "IPPC2018/WildlifePreserve/p1/instance1.rddl": r"constraint violated .*defend\(\?a, \?r\)\) == 1\); actions: noop",
+    _C
+    + "IPPC2018/WildlifePreserve/p1/instance1.rddl": r"constraint violated .*defend\(\?a, \?r\)\) == 1\); actions: noop",
 }
 # ...of which these are refused only by the constraint check
 UNCHECKED_OK = set(CANNOT_RUN)
@@ -358,7 +361,9 @@ def _run_deterministic(rel: str, policy: str) -> Trace:
             actions = sim.actions_from_names(ours_named)
             legal = bool(sim.check_actions(state, actions)[0])
             if not theirs and legal != _gym_legal(env, {}):
-                trace.problems.append(f"step {t}: noop is legal for {'us' if legal else 'pyRDDLGym'} only")
+                trace.problems.append(
+                    f"step {t}: noop is legal for {'us' if legal else 'pyRDDLGym'} only"
+                )
                 break
             # pyRDDLGym does not enforce action constraints by default: where
             # noop is illegal for both, both step anyway
@@ -386,7 +391,9 @@ def _run_deterministic(rel: str, policy: str) -> Trace:
                     f"{label}: termination ours {bool(out.done[0])}, pyRDDLGym {bool(terminated)}"
                 )
             if truncated and legal and t + 1 < env.horizon:
-                trace.problems.append(f"{label}: pyRDDLGym finds a state invariant violated, we do not")
+                trace.problems.append(
+                    f"{label}: pyRDDLGym finds a state invariant violated, we do not"
+                )
             if trace.problems or out.done[0] or terminated or truncated:
                 break
             state = out.next_state
@@ -492,7 +499,9 @@ def test_deterministic_trajectory_agrees(rel: str, policy: str) -> None:
         return
     trace = _run_deterministic(rel, policy)
     if rel in KNOWN_PYRDDLGYM_BUGS:
-        assert trace.problems, f"no longer disagrees with pyRDDLGym: drop it from KNOWN_PYRDDLGYM_BUGS ({KNOWN_PYRDDLGYM_BUGS[rel]})"
+        assert trace.problems, (
+            f"no longer disagrees with pyRDDLGym: drop it from KNOWN_PYRDDLGYM_BUGS ({KNOWN_PYRDDLGYM_BUGS[rel]})"
+        )
         return
     assert not trace.problems, "\n".join(trace.problems)
     assert trace.steps >= 1
@@ -509,6 +518,8 @@ def test_stochastic_noop_return_agrees(rel: str) -> None:
         check = False
     ok, msg = _compare_means(rel, check=check)
     if rel in KNOWN_PYRDDLGYM_BUGS:
-        assert not ok, f"no longer disagrees with pyRDDLGym: drop it from KNOWN_PYRDDLGYM_BUGS ({KNOWN_PYRDDLGYM_BUGS[rel]}); {msg}"
+        assert not ok, (
+            f"no longer disagrees with pyRDDLGym: drop it from KNOWN_PYRDDLGYM_BUGS ({KNOWN_PYRDDLGYM_BUGS[rel]}); {msg}"
+        )
         return
     assert ok, msg

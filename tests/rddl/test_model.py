@@ -36,7 +36,9 @@ def test_pomdp_and_enums(rddlsim_rddl: Path) -> None:
     assert side.default_of("walk") == "@none"
     assert side.objects("direction") == ("@up", "@down", "@left", "@right", "@none")
     traffic = models["inst_traffic_binary_ctm"]
-    enum_state = [p for p in traffic.fluents("state-fluent") if p.range not in ("bool", "int", "real")]
+    enum_state = [
+        p for p in traffic.fluents("state-fluent") if p.range not in ("bool", "int", "real")
+    ]
     assert enum_state, "the CTM domain has an enum-valued state fluent"
 
 

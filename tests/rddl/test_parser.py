@@ -40,11 +40,19 @@ a, bb, c, d = pv("a"), pv("b"), pv("c"), pv("d")
         ("if (a) then 1 else 2 + 3", A.If(a, A.Const(1), b("+", A.Const(2), A.Const(3)))),
         (
             "sum_{?x : t} f(?x) + 1",
-            A.Aggregation("sum", (A.TypedVar("?x", "t"),), b("+", pv("f", A.Var("?x")), A.Const(1))),
+            A.Aggregation(
+                "sum", (A.TypedVar("?x", "t"),), b("+", pv("f", A.Var("?x")), A.Const(1))
+            ),
         ),
         (
             "a + exists_{?x : t} f(?x) ^ g",
-            b("+", a, A.Aggregation("exists", (A.TypedVar("?x", "t"),), b("^", pv("f", A.Var("?x")), pv("g")))),
+            b(
+                "+",
+                a,
+                A.Aggregation(
+                    "exists", (A.TypedVar("?x", "t"),), b("^", pv("f", A.Var("?x")), pv("g"))
+                ),
+            ),
         ),
         ("[a + b] * c", b("*", b("+", a, bb), c)),
     ],
@@ -78,7 +86,14 @@ def test_literals_keep_their_kind() -> None:
         ("Bernoulli(p)", A.Distribution("Bernoulli", (pv("p"),))),
         (
             "Discrete(t, @a : 0.3, @b : otherwise)",
-            A.Discrete("Discrete", "t", (A.DiscreteCase(A.EnumLit("@a"), A.Const(0.3)), A.DiscreteCase(A.EnumLit("@b"), None))),
+            A.Discrete(
+                "Discrete",
+                "t",
+                (
+                    A.DiscreteCase(A.EnumLit("@a"), A.Const(0.3)),
+                    A.DiscreteCase(A.EnumLit("@b"), None),
+                ),
+            ),
         ),
         (
             "Discrete_{?i : item}[w(?i)]",
@@ -94,9 +109,16 @@ def test_literals_keep_their_kind() -> None:
         ),
         (
             "MultivariateNormal[?x](m(?x), s(?x, ?y))",
-            A.VectorDistribution("MultivariateNormal", ("?x",), (pv("m", A.Var("?x")), pv("s", A.Var("?x"), A.Var("?y")))),
+            A.VectorDistribution(
+                "MultivariateNormal",
+                ("?x",),
+                (pv("m", A.Var("?x")), pv("s", A.Var("?x"), A.Var("?y"))),
+            ),
         ),
-        ("argmax_{?s : shape} r(?s)", A.Aggregation("argmax", (A.TypedVar("?s", "shape"),), pv("r", A.Var("?s")))),
+        (
+            "argmax_{?s : shape} r(?s)",
+            A.Aggregation("argmax", (A.TypedVar("?s", "shape"),), pv("r", A.Var("?s"))),
+        ),
     ],
 )
 def test_expression_forms(text: str, tree: A.Expr) -> None:
@@ -157,7 +179,10 @@ def test_blocks_and_positions() -> None:
     assert dom.pvariables[3].level == A.Const(1)
     assert dom.pvariables[4].default is None
     assert [(c.name, c.primed, c.params) for c in dom.cpfs] == [
-        ("n", False, ("?t",)), ("on", True, ("?t",)), ("lvl", True, ()), ("o", False, ("?t",)),
+        ("n", False, ("?t",)),
+        ("on", True, ("?t",)),
+        ("lvl", True, ()),
+        ("o", False, ("?t",)),
     ]
     assert len(dom.action_preconditions) == 1 and len(dom.termination) == 1
     # positions are 1-based and point at the construct
@@ -168,7 +193,10 @@ def test_blocks_and_positions() -> None:
     assert inst.max_nondef_actions is None and inst.non_fluents is None
     assert [o.names for o in inst.objects] == [("t1", "t2"), ("w1",)]
     assert inst.init_state is not None
-    assert [(s.name, s.args, s.negated) for s in inst.init_state] == [("on", ("t1",), False), ("on", ("t2",), True)]
+    assert [(s.name, s.args, s.negated) for s in inst.init_state] == [
+        ("on", ("t1",), False),
+        ("on", ("t2",), True),
+    ]
     assert inst.init_state[1].resolved_value() == A.Const(False)
 
 
@@ -186,8 +214,10 @@ def test_ippc2011_layout_and_terminate_when() -> None:
 
 
 def test_syntax_errors_in_two_blocks_are_both_reported() -> None:
-    text = "domain d {\n  pvariables { x : { state-fluent, bool, default = false } };\n}\n" \
-           "instance i {\n  domain = d;\n  horizon = ;\n}\n"
+    text = (
+        "domain d {\n  pvariables { x : { state-fluent, bool, default = false } };\n}\n"
+        "instance i {\n  domain = d;\n  horizon = ;\n}\n"
+    )
     with pytest.raises(RDDLSyntaxError) as info:
         parse(text, "two.rddl")
     lines = [(d.line, d.column) for d in info.value.diagnostics]

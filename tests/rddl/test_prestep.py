@@ -40,7 +40,11 @@ def _play_both(sim: Simulator, steps: int, seed: int, policy: str = "random") ->
     prepare/finish, the same random actions; asserts they agree throughout
     and that both generators end in the same place. The number of steps
     that went through prepare/finish."""
-    r1, r2, pol = np.random.default_rng(seed), np.random.default_rng(seed), np.random.default_rng(seed + 1)
+    r1, r2, pol = (
+        np.random.default_rng(seed),
+        np.random.default_rng(seed),
+        np.random.default_rng(seed + 1),
+    )
     state = sim.initial_state(1)
     prepared_steps = 0
     for _ in range(steps):
@@ -127,7 +131,9 @@ def test_a_batch_or_a_failing_pre_part_is_not_prepared() -> None:
 
 
 def _split(body: str) -> tuple[str, str, list[str]] | None:
-    return split_step_source("def f(S, A, B, rng, check):\n" + textwrap.indent(textwrap.dedent(body), "    "))
+    return split_step_source(
+        "def f(S, A, B, rng, check):\n" + textwrap.indent(textwrap.dedent(body), "    ")
+    )
 
 
 def test_split_rules() -> None:
@@ -143,8 +149,18 @@ def test_split_rules() -> None:
         return v
     """) or ("", "", [])
     assert handed == ["t"]
-    assert pre.splitlines()[1:] == ["    s = S['x']", "    u = _uniforms(rng, 2)", "    t = f(s, u)", "    return (t,)"]
-    assert "a = A['y']" in post and "if check:" in post and "return v" in post and "f(s, u)" not in post
+    assert pre.splitlines()[1:] == [
+        "    s = S['x']",
+        "    u = _uniforms(rng, 2)",
+        "    t = f(s, u)",
+        "    return (t,)",
+    ]
+    assert (
+        "a = A['y']" in post
+        and "if check:" in post
+        and "return v" in post
+        and "f(s, u)" not in post
+    )
     # an in-place write after a post statement stays behind it; after a post
     # in-place write, everything stays
     _, post, _ = _split("""
@@ -172,15 +188,21 @@ def test_split_rules() -> None:
     """) or ("", "", [])
     assert "e = rng.random(3)" in post
     # a name assigned twice, or nothing to move: no split
-    assert _split("""
+    assert (
+        _split("""
         s = S['x']
         s = A['y']
         return s
-    """) is None
-    assert _split("""
+    """)
+        is None
+    )
+    assert (
+        _split("""
         a = A['y']
         return a
-    """) is None
+    """)
+        is None
+    )
 
 
 @pytest.mark.slow

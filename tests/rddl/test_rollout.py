@@ -63,7 +63,10 @@ def test_legal_actions_of_a_boolean_action_space(rddlsim_rddl: Path) -> None:
     pf = Simulator(load(DOMAINS / "print_fetch")["print_fetch_inst_1"])
     legal = pf.legal_actions(pf.initial_state())
     # at the dock: noop or the one move the map allows
-    assert [pf.actions_to_names(legal, i) for i in range(len(legal["move"]))] == [[], ["move(printroom) = true"]]
+    assert [pf.actions_to_names(legal, i) for i in range(len(legal["move"]))] == [
+        [],
+        ["move(printroom) = true"],
+    ]
 
 
 def test_run_episodes_counts_and_reproducibility(rddlsim_rddl: Path) -> None:
@@ -85,21 +88,62 @@ def test_termination_ends_episodes_early() -> None:
 def test_cli_sim_json() -> None:
     res = CliRunner().invoke(
         main,
-        ["sim", str(DOMAINS / "print_fetch" / "domain.rddl"), str(DOMAINS / "print_fetch" / "instance1.rddl"),
-         "--policy", "random", "--episodes", "20", "--seed", "4", "--json"],
+        [
+            "sim",
+            str(DOMAINS / "print_fetch" / "domain.rddl"),
+            str(DOMAINS / "print_fetch" / "instance1.rddl"),
+            "--policy",
+            "random",
+            "--episodes",
+            "20",
+            "--seed",
+            "4",
+            "--json",
+        ],
     )
     assert res.exit_code == 0, res.output
     data = json.loads(res.output)
-    assert set(data) == {"instance", "episodes", "mean_return", "std_return", "steps", "steps_per_second"}
-    assert data["instance"] == "print_fetch_inst_1" and data["episodes"] == 20 and data["steps"] == 20 * 20
-    again = json.loads(CliRunner().invoke(main, ["sim", str(DOMAINS / "print_fetch" / "domain.rddl"), str(DOMAINS / "print_fetch" / "instance1.rddl"), "--policy", "random", "--episodes", "20", "--seed", "4", "--json"]).output)
+    assert set(data) == {
+        "instance",
+        "episodes",
+        "mean_return",
+        "std_return",
+        "steps",
+        "steps_per_second",
+    }
+    assert (
+        data["instance"] == "print_fetch_inst_1"
+        and data["episodes"] == 20
+        and data["steps"] == 20 * 20
+    )
+    again = json.loads(
+        CliRunner()
+        .invoke(
+            main,
+            [
+                "sim",
+                str(DOMAINS / "print_fetch" / "domain.rddl"),
+                str(DOMAINS / "print_fetch" / "instance1.rddl"),
+                "--policy",
+                "random",
+                "--episodes",
+                "20",
+                "--seed",
+                "4",
+                "--json",
+            ],
+        )
+        .output
+    )
     assert again["mean_return"] == data["mean_return"]
 
 
 def test_cli_sim_reports_simulation_errors(tmp_path: Path) -> None:
     from .test_parser import DOMAIN, INSTANCE_2018
 
-    (tmp_path / "d.rddl").write_text(DOMAIN.replace("on'(?t) = go(?t) | on(?t);", "on'(?t) = Bernoulli(W);"))
+    (tmp_path / "d.rddl").write_text(
+        DOMAIN.replace("on'(?t) = go(?t) | on(?t);", "on'(?t) = Bernoulli(W);")
+    )
     (tmp_path / "i.rddl").write_text(INSTANCE_2018.replace("horizon = pos-inf;", "horizon = 3;"))
     res = CliRunner().invoke(main, ["sim", str(tmp_path / "d.rddl"), str(tmp_path / "i.rddl")])
     assert res.exit_code == 1

@@ -54,7 +54,9 @@ def _same_outcome(out1: tuple, out2: tuple) -> None:
             assert _identical(obs1[k], obs2[k]), k
 
 
-def _actions_seq(sim: Simulator, state: State, pick: np.random.Generator, t: int) -> dict[str, np.ndarray] | None:
+def _actions_seq(
+    sim: Simulator, state: State, pick: np.random.Generator, t: int
+) -> dict[str, np.ndarray] | None:
     """Noop, no actions at all, or random legal ones (noop where none is)."""
     if t % 3 == 0:
         return None
@@ -141,7 +143,13 @@ def test_batch_of_one_code_widens_constants_and_raises_the_same(rddlsim_rddl: Pa
     msgs = []
     for batch_fn in (sim._step_fn(1), sim._step_small):
         with pytest.raises(SimulationError) as info:
-            batch_fn(sim.initial_state(1).values, sim._actions(acts, 1), 1, np.random.default_rng(0), True)
+            batch_fn(
+                sim.initial_state(1).values,
+                sim._actions(acts, 1),
+                1,
+                np.random.default_rng(0),
+                True,
+            )
         msgs.append(str(info.value))
     assert msgs[0] == msgs[1]
     with pytest.raises(SimulationError, match="max-nondef-actions|nondef"):
@@ -168,7 +176,9 @@ def _trajectory(sim: Simulator, batch: int, seed: int, steps: int) -> list[tuple
     return out
 
 
-def test_constants_cast_once_give_the_per_call_values(rddlsim_rddl: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+def test_constants_cast_once_give_the_per_call_values(
+    rddlsim_rddl: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
     models = [load(rddlsim_rddl)[name] for name in RDDLSIM]
     models += [load_pair(*pair) for pair in _corpus_pairs()]
     cast = [Simulator(m) for m in models]
@@ -202,7 +212,9 @@ instance dz_1 { domain = dz; init-state { z = 1e-200; }; max-nondef-actions = 1;
 """
 
 
-def test_step_ignores_divide_invalid_and_overflow_and_keeps_the_callers_state(tmp_path: Path) -> None:
+def test_step_ignores_divide_invalid_and_overflow_and_keeps_the_callers_state(
+    tmp_path: Path,
+) -> None:
     (tmp_path / "dz.rddl").write_text(DIVIDE)
     sim = Simulator(load_model(tmp_path))
     rng = np.random.default_rng(0)
@@ -221,7 +233,12 @@ def test_step_ignores_divide_invalid_and_overflow_and_keeps_the_callers_state(tm
             with np.errstate(all="raise"):
                 with pytest.raises(FloatingPointError, match="underflow"):
                     sim.step(state, None, rng)
-                assert np.geterr() == {"divide": "raise", "over": "raise", "under": "raise", "invalid": "raise"}
+                assert np.geterr() == {
+                    "divide": "raise",
+                    "over": "raise",
+                    "under": "raise",
+                    "invalid": "raise",
+                }
                 # ... and a step already in the step's own state changes nothing
                 with np.errstate(divide="ignore", invalid="ignore", over="ignore", under="ignore"):
                     sim.step(state, None, rng)
@@ -232,7 +249,12 @@ def test_step_returns_a_frozen_step(rddlsim_rddl: Path) -> None:
     sim = Simulator(load(rddlsim_rddl)["sysadmin_inst_mdp__1"])
     out = sim.step(sim.initial_state(1), None, np.random.default_rng(0))
     assert type(out) is Step
-    assert [f.name for f in dataclasses.fields(out)] == ["next_state", "reward", "observation", "done"]
+    assert [f.name for f in dataclasses.fields(out)] == [
+        "next_state",
+        "reward",
+        "observation",
+        "done",
+    ]
     assert isinstance(out.next_state, State) and out.next_state.batch == 1
     assert out.reward.shape == (1,) and out.done.shape == (1,) and out.observation is None
     with pytest.raises(dataclasses.FrozenInstanceError):

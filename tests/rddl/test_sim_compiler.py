@@ -110,12 +110,17 @@ def test_checks_agree_in_both_variants(rddlsim_rddl: Path) -> None:
     actions = sim.noop(64)
     for p in sim.action_fluents:  # many actions at once: some states illegal
         actions[p.name][...] = rng.random(actions[p.name].shape) < 0.3
-    small = sim.check_actions(state[: _LARGE_BATCH - 1], {k: v[: _LARGE_BATCH - 1] for k, v in actions.items()})
+    small = sim.check_actions(
+        state[: _LARGE_BATCH - 1], {k: v[: _LARGE_BATCH - 1] for k, v in actions.items()}
+    )
     large = sim.check_actions(state, actions)
     assert large.shape == (64,) and large.dtype == bool
     assert 0 < large.sum() < 64
     assert (large[: _LARGE_BATCH - 1] == small).all()
-    by_one = [bool(sim.check_actions(state[i], {k: v[i : i + 1] for k, v in actions.items()})[0]) for i in range(64)]
+    by_one = [
+        bool(sim.check_actions(state[i], {k: v[i : i + 1] for k, v in actions.items()})[0])
+        for i in range(64)
+    ]
     assert large.tolist() == by_one
 
 
@@ -217,7 +222,12 @@ def test_parameter_checks_stay_where_bounds_do_not_prove_them(tmp_path: Path) ->
     s.values["p"][1] = False
     sim2.step(s, None, np.random.default_rng(0))  # every probability within [0, 1]: no error
     # a real-valued state fluent has no bounds: checked
-    sim3 = _fold_sim(tmp_path, FOLD.replace("Bernoulli(0.25 + 0.5 * c(?x) / [1 + sum_{?y : obj} REL(?y, ?x)])", "Bernoulli(q(?x))"))
+    sim3 = _fold_sim(
+        tmp_path,
+        FOLD.replace(
+            "Bernoulli(0.25 + 0.5 * c(?x) / [1 + sum_{?y : obj} REL(?y, ?x)])", "Bernoulli(q(?x))"
+        ),
+    )
     s3 = sim3.initial_state(40)
     with pytest.raises(SimulationError, match=r"probability outside \[0, 1\]: -2\.0"):
         sim3.step(s3, None, np.random.default_rng(0))
@@ -228,7 +238,8 @@ def test_constant_conditions_and_folded_constraints(tmp_path: Path) -> None:
         "q'(?x) = q(?x) + (sum_{?y : obj} [W(?y) * REL(?x, ?y) * (q(?y) - q(?x))]) + exp[W(?x)];",
         "q'(?x) = if (W(o2) > 1) then q(?x) + 1 else Bernoulli(0.5) + q(?x);",
     ).replace(
-        "reward =", "state-action-constraints { forall_{?x : obj} W(?x) >= 0; exists_{?x : obj} W(?x) > 1; }; reward ="
+        "reward =",
+        "state-action-constraints { forall_{?x : obj} W(?x) >= 0; exists_{?x : obj} W(?x) > 1; }; reward =",
     )
     sim = _fold_sim(tmp_path, text)
     src = sim.source()
@@ -243,7 +254,9 @@ def test_constant_conditions_and_folded_constraints(tmp_path: Path) -> None:
     # constraints that hold for every state and action fold away; one that
     # fails for every state raises at run time, not when building
     assert sim.check_actions(sim.initial_state(3), sim.noop(3)).all()
-    failing = _fold_sim(tmp_path, text.replace("exists_{?x : obj} W(?x) > 1", "exists_{?x : obj} W(?x) > 5"))
+    failing = _fold_sim(
+        tmp_path, text.replace("exists_{?x : obj} W(?x) > 1", "exists_{?x : obj} W(?x) > 5")
+    )
     with pytest.raises(SimulationError, match="constraint violated"):
         failing.step(failing.initial_state(), None, np.random.default_rng(0))
     assert not failing.check_actions(failing.initial_state(2), failing.noop(2)).any()
@@ -271,7 +284,9 @@ def test_same_seed_same_trajectory_in_both_variants(rddlsim_rddl: Path) -> None:
 # ----------------------------------------------------------- random policy
 
 
-def reference_random_actions(sim: Simulator, state: State, rng: np.random.Generator) -> dict[str, np.ndarray]:
+def reference_random_actions(
+    sim: Simulator, state: State, rng: np.random.Generator
+) -> dict[str, np.ndarray]:
     """The random policy one candidate at a time, as rddlsim's loop goes
     (the same draws as `Simulator.random_actions`, in the same order)."""
     batch = state.batch
@@ -350,8 +365,12 @@ def test_random_policy_takes_at_most_rddlsims_cap_and_follows_the_rule(tmp_path:
         want = reference_random_actions(sim, state, np.random.default_rng(seed))
         assert all((got[k] == want[k]).all() for k in got), seed
     # without constraints the cap binds too (the all-at-once path)
-    (tmp_path / "cap.rddl").write_text((CAP % objs).replace(
-        "action-preconditions { forall_{?x : obj} ~(a(?x) ^ b(?x)); (sum_{?x : obj} a(?x)) <= 7; };", ""))
+    (tmp_path / "cap.rddl").write_text(
+        (CAP % objs).replace(
+            "action-preconditions { forall_{?x : obj} ~(a(?x) ^ b(?x)); (sum_{?x : obj} a(?x)) <= 7; };",
+            "",
+        )
+    )
     free = Simulator(load_model(tmp_path))
     got = free.random_actions(free.initial_state(5), np.random.default_rng(0))
     assert (free.count_nondefault(got, 5) == RANDOM_MAX_CONCURRENT).all()

@@ -156,7 +156,10 @@ def test_branches_give_the_marginal_of_the_branch_taken(
     _within(nxt["h"][k == 2], 0.9)
     # and the groundings of one fluent are independent of each other
     _within(nxt["a"][:, 1] & nxt["a"][:, 3], 0.3 * 0.999999)
-    _within(nxt["e"][:, 0] & nxt["e"][:, 1], float(np.mean(np.where(c[:, 0], 0.2, 0.7) * np.where(c[:, 1], 0.2, 0.7))))
+    _within(
+        nxt["e"][:, 0] & nxt["e"][:, 1],
+        float(np.mean(np.where(c[:, 0], 0.2, 0.7) * np.where(c[:, 1], 0.2, 0.7))),
+    )
 
 
 @pytest.mark.parametrize("batch", [1, 3, _LARGE_BATCH, 100])

@@ -47,7 +47,9 @@ def _chosen() -> list[tuple[Path, Path]]:
 PAIRS = _chosen()
 
 
-@pytest.mark.parametrize("pair", PAIRS, ids=[p[1].relative_to(p[1].parents[2]).as_posix() for p in PAIRS])
+@pytest.mark.parametrize(
+    "pair", PAIRS, ids=[p[1].relative_to(p[1].parents[2]).as_posix() for p in PAIRS]
+)
 def test_variants_agree(pair: tuple[Path, Path]) -> None:
     logging.disable(logging.WARNING)
     try:

@@ -180,12 +180,19 @@ def root_of(msg: bytes) -> str:
     return m.group(1).decode() if m else "?"
 
 
-def session_request(instance: str = "sysadmin_inst_mdp__1", client: str = "raw", no_header: bool = False) -> bytes:
+def session_request(
+    instance: str = "sysadmin_inst_mdp__1", client: str = "raw", no_header: bool = False
+) -> bytes:
     nh = b"<no-header/>" if no_header else b""
     return (
         DECL
-        + b"<session-request><problem-name>" + instance.encode() + b"</problem-name><client-name>"
-        + client.encode() + b"</client-name>" + nh + b"</session-request>\0"
+        + b"<session-request><problem-name>"
+        + instance.encode()
+        + b"</problem-name><client-name>"
+        + client.encode()
+        + b"</client-name>"
+        + nh
+        + b"</session-request>\0"
     )
 
 
@@ -214,7 +221,9 @@ async def noop_session(
                     out["rounds"].append(float(msg.findtext("round-reward")))
                     break
                 assert msg.tag == "turn", msg.tag
-                out["states"].append([x.findtext("fluent-value") for x in msg.findall("observed-fluent")])
+                out["states"].append(
+                    [x.findtext("fluent-value") for x in msg.findall("observed-fluent")]
+                )
                 if stall:
                     await trio.sleep(stall)
                 await c.send(NOOP)

@@ -38,7 +38,9 @@ def start(*args: str) -> tuple[subprocess.Popen, int]:
         if proc.poll() is not None:
             break
     proc.kill()
-    raise AssertionError(f"no 'listening on' line: {line!r} {proc.stderr.read() if proc.stderr else ''}")
+    raise AssertionError(
+        f"no 'listening on' line: {line!r} {proc.stderr.read() if proc.stderr else ''}"
+    )
 
 
 async def play_turns(port: int, turns: int) -> int:
@@ -84,8 +86,12 @@ def test_a_bad_result_database_is_refused_in_one_line(tmp_path: Path) -> None:
     cases = [(newer, "schema version 99"), (junk, "file is not a database")]
     for db, why in cases:
         for workers in ("1", "2"):
-            r = subprocess.run([*SERVER, str(RDDL), "--port", "0", "--workers", workers, "--db", str(db)],
-                               capture_output=True, text=True, timeout=60)
+            r = subprocess.run(
+                [*SERVER, str(RDDL), "--port", "0", "--workers", workers, "--db", str(db)],
+                capture_output=True,
+                text=True,
+                timeout=60,
+            )
             assert r.returncode == 1, r.stderr
             assert f"Error: --db {db}: " in r.stderr and why in r.stderr, r.stderr
             assert "Traceback" not in r.stderr and "listening on" not in r.stdout
@@ -93,8 +99,12 @@ def test_a_bad_result_database_is_refused_in_one_line(tmp_path: Path) -> None:
 
 def test_busy_poll_bounds() -> None:
     for bad in ("-1", "20000"):
-        r = subprocess.run([*SERVER, str(RDDL), "--busy-poll-us", bad], capture_output=True, text=True, timeout=60)
-        assert r.returncode == 2 and "--busy-poll-us" in r.stderr and "between 0 and 10000" in r.stderr
+        r = subprocess.run(
+            [*SERVER, str(RDDL), "--busy-poll-us", bad], capture_output=True, text=True, timeout=60
+        )
+        assert (
+            r.returncode == 2 and "--busy-poll-us" in r.stderr and "between 0 and 10000" in r.stderr
+        )
 
 
 def test_kill_9_loses_no_answered_step(tmp_path: Path) -> None:
@@ -118,6 +128,7 @@ def test_sigterm_records_open_sessions_as_interrupted(tmp_path: Path) -> None:
     db = tmp_path / "results.db"
     logs = tmp_path / "logs"
     proc, port = start("--rounds", "30", "--db", str(db), "--log-dir", str(logs))
+
     async def victim_then_signal() -> None:
         c = await RawClient.connect(port)
         await c.send(session_request(client="victim"))
@@ -138,12 +149,17 @@ def test_sigterm_records_open_sessions_as_interrupted(tmp_path: Path) -> None:
     con = sqlite3.connect(db)
     rows = con.execute("select status from sessions").fetchall()
     assert rows == [("interrupted",)]
-    assert (logs / f"logs-{port}.log").read_text().startswith('<?xml version="1.0" encoding="UTF-8"?>\n<client-info>')
+    assert (
+        (logs / f"logs-{port}.log")
+        .read_text()
+        .startswith('<?xml version="1.0" encoding="UTF-8"?>\n<client-info>')
+    )
 
 
 def test_individual_session_exits_after_one(tmp_path: Path) -> None:
     proc, port = start("--rounds", "1", "--individual-session")
     try:
+
         async def one() -> None:
             from .harness import noop_session
 
@@ -163,8 +179,12 @@ def test_busy_poll_is_off_with_one_cpu() -> None:
         import pytest
 
         pytest.skip("no taskset")
-    proc = subprocess.Popen(["taskset", "-c", "0", *SERVER, str(RDDL), "--port", "0"],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    proc = subprocess.Popen(
+        ["taskset", "-c", "0", *SERVER, str(RDDL), "--port", "0"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     try:
         assert proc.stdout is not None and proc.stdout.readline().startswith("listening on")
     finally:

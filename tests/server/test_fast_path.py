@@ -91,16 +91,24 @@ def test_turn_cache_is_keyed_by_values_and_types_and_bounded(monkeypatch) -> Non
     sim, codec = instance.compiled_now()
     running = np.array([[True, False] * 5])
     as_bytes = running.astype(np.uint8)  # the same bytes, another type
-    states = [State({"running": running}), State({"running": as_bytes}), State({"running": running.T.copy().T})]
+    states = [
+        State({"running": running}),
+        State({"running": as_bytes}),
+        State({"running": running.T.copy().T}),
+    ]
     written = []
     for state in states * 2:
         expected = codec.turn_fluents(state, None)
         assert expected is not None
         sent, xml = instance.turn_fluents(codec, state, None)
         assert [type(v) for _, _, v in sent or ()] == [type(v) for _, _, v in expected]
-        assert xml == ObservedFluentsWriter((n, a) for n, a, _ in expected).write([v for _, _, v in expected])
+        assert xml == ObservedFluentsWriter((n, a) for n, a, _ in expected).write(
+            [v for _, _, v in expected]
+        )
         written.append(xml)
-    assert "<fluent-value>true<" in written[0] and "<fluent-value>1<" in written[1]  # True == 1 in Python
+    assert (
+        "<fluent-value>true<" in written[0] and "<fluent-value>1<" in written[1]
+    )  # True == 1 in Python
     assert len(instance._turns) == 2  # bool and uint8; the third state is the first again
     monkeypatch.setattr("ippc.server.registry.TURN_CACHE_CHARS", 0)
     other = State({"running": ~running})
@@ -333,7 +341,10 @@ async def test_busy_poll_off_never_reads() -> None:
 async def test_sessions_with_busy_poll_play_as_without_it() -> None:
     results = []
     for poll in (0.0, 50.0):
-        async with running_server(ServerConfig(port=0, rounds=2, busy_poll_us=poll)) as (port, _svc):
+        async with running_server(ServerConfig(port=0, rounds=2, busy_poll_us=poll)) as (
+            port,
+            _svc,
+        ):
             with trio.fail_after(30):
                 results.append(await noop_session(port))
     assert results[0] == results[1]

@@ -54,7 +54,9 @@ async def test_disconnect_mid_message(caplog) -> None:
 
     async with running_server(cfg()) as (port, _):
         await _healthy_alongside(port, bad)
-    assert any("client 'bad'" in r.getMessage() and "closed" in r.getMessage() for r in caplog.records)
+    assert any(
+        "client 'bad'" in r.getMessage() and "closed" in r.getMessage() for r in caplog.records
+    )
 
 
 async def test_endless_message_is_cut_at_the_limit(caplog) -> None:
@@ -84,7 +86,8 @@ async def test_billion_laughs_is_refused(caplog) -> None:
     lol = (
         b'<?xml version="1.0"?><!DOCTYPE lolz [<!ENTITY lol "lol">'
         + b"".join(
-            b'<!ENTITY lol%d "%s">' % (i, (b"&lol%d;" % (i - 1) if i > 1 else b"&lol;") * 10) for i in range(1, 10)
+            b'<!ENTITY lol%d "%s">' % (i, (b"&lol%d;" % (i - 1) if i > 1 else b"&lol;") * 10)
+            for i in range(1, 10)
         )
         + b"]><session-request><problem-name>&lol9;</problem-name><client-name>laughs</client-name></session-request>\0"
     )
@@ -132,7 +135,14 @@ async def test_half_closed_client_ends_at_once() -> None:
 
 
 async def test_garbage_then_good_clients() -> None:
-    garbage = [b"\0", b"hello\0", b"<session-request/>\0", b"\xff\xfe\0", b"<a><b></a>\0", DECL + b"<actions/>\0"]
+    garbage = [
+        b"\0",
+        b"hello\0",
+        b"<session-request/>\0",
+        b"\xff\xfe\0",
+        b"<a><b></a>\0",
+        DECL + b"<actions/>\0",
+    ]
     async with running_server(cfg()) as (port, _):
         with trio.fail_after(20):
             for g in garbage:

@@ -21,7 +21,14 @@ from .harness import (
     strip_frame,
 )
 
-TWO_REBOOTS = DECL + encode(Actions((Fluent("reboot", ("c1",), "true"), Fluent("reboot", ("c2",), "true"))), declaration=False) + b"\0"
+TWO_REBOOTS = (
+    DECL
+    + encode(
+        Actions((Fluent("reboot", ("c1",), "true"), Fluent("reboot", ("c2",), "true"))),
+        declaration=False,
+    )
+    + b"\0"
+)
 ONE_REBOOT = DECL + encode(Actions((Fluent("reboot", ("c3",), "true"),)), declaration=False) + b"\0"
 
 

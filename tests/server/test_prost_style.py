@@ -49,7 +49,11 @@ async def test_fake_prost_and_a_nul_client_at_once(prost_dir: Path, tmp_path: Pa
                 n.start_soon(nul_client)
                 result = await trio.to_thread.run_sync(
                     lambda: planner.run_session(
-                        host="127.0.0.1", port=port, instance="sysadmin_inst_mdp__1", timeout=45, log_path=tmp_path / "prost.log"
+                        host="127.0.0.1",
+                        port=port,
+                        instance="sysadmin_inst_mdp__1",
+                        timeout=45,
+                        log_path=tmp_path / "prost.log",
                     )
                 )
     assert result.ok, (result.error, (tmp_path / "prost.log").read_text()[-2000:])

@@ -22,18 +22,15 @@ DECL = '<?xml version="1.0" encoding="UTF-8"?>'
 RDDLSIM_LOG = (
     DECL + "\n"
     "<client-info><client-hostname>localhost</client-hostname>"
-    "<client-ip>127.0.0.1</client-ip></client-info>\n"
-    + DECL + "\n"
+    "<client-ip>127.0.0.1</client-ip></client-info>\n" + DECL + "\n"
     "<round-end><instance-name>sysadmin_inst_mdp__1</instance-name><client-name>alpha"
     "</client-name><round-num>0</round-num><round-reward>43.25</round-reward><turns-used>5"
     "</turns-used><time-left>1079768</time-left><immediate-reward>8.25</immediate-reward>"
-    "</round-end>\n"
-    + DECL + "\n"
+    "</round-end>\n" + DECL + "\n"
     "<round-end><instance-name>sysadmin_inst_mdp__1</instance-name><client-name>alpha"
     "</client-name><round-num>1</round-num><round-reward>43.25</round-reward><turns-used>5"
     "</turns-used><time-left>1079656</time-left><immediate-reward>8.25</immediate-reward>"
-    "</round-end>\n"
-    + DECL + "\n"
+    "</round-end>\n" + DECL + "\n"
     "<session-end><instance-name>sysadmin_inst_mdp__1</instance-name><total-reward>86.5"
     "</total-reward><rounds-used>2</rounds-used><client-name>alpha</client-name><session-id>1"
     "</session-id><time-left>1079653</time-left></session-end>\n"
@@ -62,14 +59,16 @@ def log_reader(log: bytes) -> dict[str, dict[str, list[float]]]:
             instance = node.findtext("instance-name")
             assert client is not None and instance is not None
             out.setdefault(client, {}).setdefault(instance, []).append(
-                float(node.findtext("round-reward") or "nan"))
+                float(node.findtext("round-reward") or "nan")
+            )
     return out
 
 
 def test_default_path_as_rddlsim() -> None:
     assert RddlsimLog.default_path(None, 2323) == Path("rddl-2323.log")
     assert RddlsimLog.default_path(Path("/var/log/ippc"), 4001) == Path(
-        "/var/log/ippc/logs-4001.log")
+        "/var/log/ippc/logs-4001.log"
+    )
 
 
 def test_log_is_byte_identical_to_rddlsims(tmp_path: Path) -> None:
@@ -106,10 +105,14 @@ def test_log_appends_and_escapes(tmp_path: Path) -> None:
     with RddlsimLog(path) as log:  # a restarted server appends, as rddlsim does
         log.client_info("a<b&c>", "::1")
     assert path.read_bytes() == (
-        (DECL + "\n<client-info><client-hostname>localhost</client-hostname>"
-         "<client-ip>127.0.0.1</client-ip></client-info>\n"
-         + DECL + "\n<client-info><client-hostname>a&lt;b&amp;c&gt;</client-hostname>"
-         "<client-ip>::1</client-ip></client-info>\n").encode())
+        (
+            DECL + "\n<client-info><client-hostname>localhost</client-hostname>"
+            "<client-ip>127.0.0.1</client-ip></client-info>\n"
+            + DECL
+            + "\n<client-info><client-hostname>a&lt;b&amp;c&gt;</client-hostname>"
+            "<client-ip>::1</client-ip></client-info>\n"
+        ).encode()
+    )
     assert log_reader(path.read_bytes()) == {}
 
 
@@ -160,8 +163,9 @@ def shared_transcripts(recordings: Path) -> list[Path]:
 def rewrite(records: list[dict], writer: TranscriptWriter) -> None:
     for r in records:
         if "data" in r:
-            writer.message(r["dir"], data_bytes(r), r.get("conn"), r["t"],
-                           partial=r.get("partial", False))
+            writer.message(
+                r["dir"], data_bytes(r), r.get("conn"), r["t"], partial=r.get("partial", False)
+            )
         elif r.get("event") == "eof":
             writer.eof(r["dir"], r.get("conn"), r["t"])
         elif r.get("event") == "note":
@@ -197,13 +201,15 @@ def test_read_every_shared_transcript_and_write_it_back(recordings: Path, tmp_pa
 
 def test_shared_transcript_bytes_survive(recordings: Path) -> None:
     meta, records = read_transcript(
-        recordings / "rddlsim" / "transcripts" / "java_sysadmin_mdp.jsonl")
+        recordings / "rddlsim" / "transcripts" / "java_sysadmin_mdp.jsonl"
+    )
     assert meta["scenario"] == "java_sysadmin_mdp"
     first = records[0]
     assert (first["i"], first["dir"]) == (0, "c2s")
     assert data_bytes(first) == (
         XML_DECLARATION + b"\n<session-request><problem-name>sysadmin_inst_mdp__1"
-        b"</problem-name><client-name>javaclient</client-name></session-request>\0")
+        b"</problem-name><client-name>javaclient</client-name></session-request>\0"
+    )
     assert all(data_bytes(r).endswith(b"\0") for r in records if "data" in r)
 
 
@@ -252,8 +258,9 @@ def test_writer_refuses_bad_direction_and_existing_file(tmp_path: Path) -> None:
 
 def test_reader_skips_a_torn_last_line_only(tmp_path: Path) -> None:
     path = tmp_path / "t.jsonl"
-    path.write_bytes(b'{"meta": {"a": 1}}\n{"i": 0, "t": 0.0, "dir": "c2s", "data": "x"}\n'
-                     b'{"i": 1, "t": 0.1, "di')
+    path.write_bytes(
+        b'{"meta": {"a": 1}}\n{"i": 0, "t": 0.0, "dir": "c2s", "data": "x"}\n{"i": 1, "t": 0.1, "di'
+    )
     meta, records = read_transcript(path)
     assert meta == {"a": 1} and [r["i"] for r in records] == [0]
     path.write_bytes(b'{"meta": {}}\n{"i": 0, "t"\n{"i": 1}\n')

@@ -30,18 +30,27 @@ async def test_transcript_and_log_of_a_session(tmp_path: Path) -> None:
     c2s = [r["data"] for r in data if r["dir"] == "c2s"]
     s2c = [r["data"] for r in data if r["dir"] == "s2c"]
     # every message, framed as on the wire, in order
-    assert c2s[0].startswith('<?xml version="1.0" encoding="UTF-8"?>\n<session-request>') and c2s[0].endswith("\0")
+    assert c2s[0].startswith('<?xml version="1.0" encoding="UTF-8"?>\n<session-request>') and c2s[
+        0
+    ].endswith("\0")
     assert c2s[1:3] == [(DECL + b"<round-request/>\0").decode(), (DECL + b"<actions/>\0").decode()]
     roots = [s.split("<", 3)[2].split(">")[0] for s in s2c]
     assert roots[:3] == ["session-init", "round-init", "turn"]
     assert roots[-2:] == ["round-end", "session-end"]
     assert roots.count("turn") == 2 * 5 and len(c2s) == 1 + 2 + 2 * 5
     assert all(s.endswith("\0") for s in s2c)
-    assert [(r.get("event"), r["dir"]) for r in records if "event" in r] == [("eof", "s2c")]  # we closed
+    assert [(r.get("event"), r["dir"]) for r in records if "event" in r] == [
+        ("eof", "s2c")
+    ]  # we closed
     # rddlsim's log: client-info, each round-end, the session-end
     log = (tmp_path / "logs" / "logs-9999.log").read_text()
     lines = log.splitlines()
     assert lines[0] == DECL.decode().strip() and lines[1].startswith("<client-info>")
     docs = [x for x in lines if not x.startswith("<?xml")]
-    assert [d.split(">")[0] for d in docs] == ["<client-info", "<round-end", "<round-end", "<session-end"]
+    assert [d.split(">")[0] for d in docs] == [
+        "<client-info",
+        "<round-end",
+        "<round-end",
+        "<session-end",
+    ]
     assert f"<total-reward>{result['total']}</total-reward>" in docs[-1]

@@ -75,7 +75,9 @@ async def replay(name: str, *, stop_at_client_eof: bool = False) -> dict[int, li
                 elif "data" in rec:
                     ours = await clients[k].recv()
                     recorded = rec["data"].rstrip("\0").encode("latin-1")
-                    assert ours is not None, f"{name} #{rec['i']}: server closed, rddlsim sent {root_of(recorded)}"
+                    assert ours is not None, (
+                        f"{name} #{rec['i']}: server closed, rddlsim sent {root_of(recorded)}"
+                    )
                     diffs = compare(recorded, ours, exact_values=_exact(recorded))
                     assert not diffs, f"{name} #{rec['i']} ({root_of(recorded)}): {diffs[:5]}"
                     received.setdefault(k, []).append(ours)

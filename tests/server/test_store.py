@@ -23,8 +23,14 @@ from ippc.server.store import SCHEMA_VERSION, ResultStore, decode_fluents, encod
 
 def new_session(store: ResultStore, **over: object) -> int:
     fields: dict[str, object] = dict(
-        server_session_id=3, instance="sysadmin_inst_mdp__1", client_name="prost", seed=2,
-        num_rounds=30, time_allowed_ms=1080000.0, peer="127.0.0.1:40512", no_header=True,
+        server_session_id=3,
+        instance="sysadmin_inst_mdp__1",
+        client_name="prost",
+        seed=2,
+        num_rounds=30,
+        time_allowed_ms=1080000.0,
+        peer="127.0.0.1:40512",
+        no_header=True,
         started_at=1700000000.25,
     )
     fields.update(over)
@@ -41,31 +47,73 @@ def store(tmp_path: Path) -> Iterator[ResultStore]:
 def test_round_trip_of_everything(store: ResultStore) -> None:
     sid = new_session(store)
     r1 = store.start_round(sid, round_num=0, counted=False, started_at=1700000001.0)
-    state = [("running", ("c1",), True), ("running", ("c2",), False),
-             ("pos", ("r1", "x"), 2), ("speed", (), 0.5), ("light", ("i1",), "@A")]
+    state = [
+        ("running", ("c1",), True),
+        ("running", ("c2",), False),
+        ("pos", ("r1", "x"), 2),
+        ("speed", (), 0.5),
+        ("light", ("i1",), "@A"),
+    ]
     actions = [("reboot", ("c2",), True), ("move", (), -1.5e-4)]
-    store.record_step(r1, turn_num=1, state=state, actions=actions, reward=9.25,
-                      turn_sent_at=1700000001.5, actions_received_at=1700000001.75)
-    store.record_step(r1, turn_num=2, state=state[:1], actions=[], reward=-0.75,
-                      turn_sent_at=1700000002.0, actions_received_at=1700000002.5)
+    store.record_step(
+        r1,
+        turn_num=1,
+        state=state,
+        actions=actions,
+        reward=9.25,
+        turn_sent_at=1700000001.5,
+        actions_received_at=1700000001.75,
+    )
+    store.record_step(
+        r1,
+        turn_num=2,
+        state=state[:1],
+        actions=[],
+        reward=-0.75,
+        turn_sent_at=1700000002.0,
+        actions_received_at=1700000002.5,
+    )
     store.end_round(r1, reward=8.5, turns_used=2, status="illegal-action", ended_at=1700000003.0)
     r2 = store.start_round(sid, round_num=1, counted=True, started_at=1700000004.0)
     store.end_round(r2, reward=0.0, turns_used=0, status="terminal", ended_at=1700000005.0)
-    store.end_session(sid, total_reward=0.0, rounds_used=2, status="finished", reason=None,
-                      ended_at=1700000006.0)
-    sid2 = new_session(store, server_session_id=4, client_name="java", no_header=False,
-                       seed=3, time_allowed_ms=2000.0)
-    store.end_session(sid2, total_reward=None, rounds_used=0, status="dropped",
-                      reason="unknown action 'fly'", ended_at=1700000007.0)
+    store.end_session(
+        sid, total_reward=0.0, rounds_used=2, status="finished", reason=None, ended_at=1700000006.0
+    )
+    sid2 = new_session(
+        store,
+        server_session_id=4,
+        client_name="java",
+        no_header=False,
+        seed=3,
+        time_allowed_ms=2000.0,
+    )
+    store.end_session(
+        sid2,
+        total_reward=None,
+        rounds_used=0,
+        status="dropped",
+        reason="unknown action 'fly'",
+        ended_at=1700000007.0,
+    )
 
     sessions = store.sessions()
     assert [s["id"] for s in sessions] == [sid, sid2]
     s = sessions[0]
     assert {k: v for k, v in s.items() if k not in ("id", "owner")} == {
-        "server_session_id": 3, "instance": "sysadmin_inst_mdp__1", "client_name": "prost",
-        "seed": 2, "num_rounds": 30, "time_allowed_ms": 1080000.0, "peer": "127.0.0.1:40512",
-        "no_header": True, "started_at": 1700000000.25, "ended_at": 1700000006.0,
-        "status": "finished", "total_reward": 0.0, "rounds_used": 2, "reason": None,
+        "server_session_id": 3,
+        "instance": "sysadmin_inst_mdp__1",
+        "client_name": "prost",
+        "seed": 2,
+        "num_rounds": 30,
+        "time_allowed_ms": 1080000.0,
+        "peer": "127.0.0.1:40512",
+        "no_header": True,
+        "started_at": 1700000000.25,
+        "ended_at": 1700000006.0,
+        "status": "finished",
+        "total_reward": 0.0,
+        "rounds_used": 2,
+        "reason": None,
     }
     assert s["owner"] == store.owner
     assert store.session(sid2)["no_header"] is False
@@ -74,8 +122,19 @@ def test_round_trip_of_everything(store: ResultStore) -> None:
     assert store.session(sid2)["time_allowed_ms"] == 2000.0
 
     rounds = store.rounds(sid)
-    assert [(r["id"], r["round_num"], r["counted"], r["status"], r["reward"], r["turns_used"],
-             r["started_at"], r["ended_at"]) for r in rounds] == [
+    assert [
+        (
+            r["id"],
+            r["round_num"],
+            r["counted"],
+            r["status"],
+            r["reward"],
+            r["turns_used"],
+            r["started_at"],
+            r["ended_at"],
+        )
+        for r in rounds
+    ] == [
         (r1, 0, False, "illegal-action", 8.5, 2, 1700000001.0, 1700000003.0),
         (r2, 1, True, "terminal", 0.0, 0, 1700000004.0, 1700000005.0),
     ]
@@ -96,15 +155,31 @@ def test_round_trip_of_everything(store: ResultStore) -> None:
 
 def test_numpy_values_are_stored_as_plain_values(store: ResultStore) -> None:
     sid = new_session(store, seed=np.int64(7), time_allowed_ms=np.float64(5.0))
-    rid = store.start_round(sid, round_num=np.int64(1), counted=np.bool_(True),
-                            started_at=np.float64(1.5))
-    state = [("running", (np.str_("c1"),), np.bool_(True)), ("count", (), np.int64(-3)),
-             ("level", ("t1",), np.float32(0.5)), ("x", (), np.float64(0.1))]
-    store.record_step(rid, turn_num=np.int64(1), state=state, actions=[], reward=np.float64(2.5),
-                      turn_sent_at=2.0, actions_received_at=3.0)
+    rid = store.start_round(
+        sid, round_num=np.int64(1), counted=np.bool_(True), started_at=np.float64(1.5)
+    )
+    state = [
+        ("running", (np.str_("c1"),), np.bool_(True)),
+        ("count", (), np.int64(-3)),
+        ("level", ("t1",), np.float32(0.5)),
+        ("x", (), np.float64(0.1)),
+    ]
+    store.record_step(
+        rid,
+        turn_num=np.int64(1),
+        state=state,
+        actions=[],
+        reward=np.float64(2.5),
+        turn_sent_at=2.0,
+        actions_received_at=3.0,
+    )
     step = store.steps(rid)[0]
-    assert step["state"] == [("running", ("c1",), True), ("count", (), -3),
-                             ("level", ("t1",), 0.5), ("x", (), 0.1)]
+    assert step["state"] == [
+        ("running", ("c1",), True),
+        ("count", (), -3),
+        ("level", ("t1",), 0.5),
+        ("x", (), 0.1),
+    ]
     assert [type(v) for _, _, v in step["state"]] == [bool, int, float, float]
     assert type(step["reward"]) is float and step["reward"] == 2.5
     assert store.session(sid)["seed"] == 7
@@ -151,16 +226,32 @@ def test_foreign_keys_and_unique_turns(store: ResultStore) -> None:
     sid = new_session(store)
     rid = store.start_round(sid, round_num=1, counted=True, started_at=0.0)
     with pytest.raises(sqlite3.IntegrityError):
-        store.record_step(rid + 1, turn_num=1, state=[], actions=[], reward=0.0,
-                          turn_sent_at=0.0, actions_received_at=0.0)
-    store.record_step(rid, turn_num=1, state=[], actions=[], reward=1.0,
-                      turn_sent_at=0.0, actions_received_at=0.0)
+        store.record_step(
+            rid + 1,
+            turn_num=1,
+            state=[],
+            actions=[],
+            reward=0.0,
+            turn_sent_at=0.0,
+            actions_received_at=0.0,
+        )
+    store.record_step(
+        rid, turn_num=1, state=[], actions=[], reward=1.0, turn_sent_at=0.0, actions_received_at=0.0
+    )
     with pytest.raises(sqlite3.IntegrityError):
-        store.record_step(rid, turn_num=1, state=[], actions=[], reward=2.0,
-                          turn_sent_at=0.0, actions_received_at=0.0)
+        store.record_step(
+            rid,
+            turn_num=1,
+            state=[],
+            actions=[],
+            reward=2.0,
+            turn_sent_at=0.0,
+            actions_received_at=0.0,
+        )
     # a failed write leaves no transaction open: the next write is committed and visible
-    store.record_step(rid, turn_num=2, state=[], actions=[], reward=3.0,
-                      turn_sent_at=0.0, actions_received_at=0.0)
+    store.record_step(
+        rid, turn_num=2, state=[], actions=[], reward=3.0, turn_sent_at=0.0, actions_received_at=0.0
+    )
     assert not store._conn.in_transaction
     with ResultStore(store.path) as other:
         assert [s["reward"] for s in other.steps(rid)] == [1.0, 3.0]
@@ -172,13 +263,15 @@ def test_bad_status_and_unknown_rows(store: ResultStore) -> None:
     with pytest.raises(ValueError, match="round status"):
         store.end_round(rid, reward=0.0, turns_used=0, status="done", ended_at=1.0)
     with pytest.raises(ValueError, match="session status"):
-        store.end_session(sid, total_reward=0.0, rounds_used=0, status="terminal",
-                          reason=None, ended_at=1.0)
+        store.end_session(
+            sid, total_reward=0.0, rounds_used=0, status="terminal", reason=None, ended_at=1.0
+        )
     with pytest.raises(KeyError):
         store.end_round(rid + 10, reward=0.0, turns_used=0, status="finished", ended_at=1.0)
     with pytest.raises(KeyError):
-        store.end_session(sid + 10, total_reward=0.0, rounds_used=0, status="finished",
-                          reason=None, ended_at=1.0)
+        store.end_session(
+            sid + 10, total_reward=0.0, rounds_used=0, status="finished", reason=None, ended_at=1.0
+        )
     with pytest.raises(KeyError):
         store.session(sid + 10)
     assert store.rounds(sid)[0]["status"] == "open"
@@ -192,21 +285,39 @@ def test_first_close_wins(store: ResultStore) -> None:
     assert store.rounds(sid)[0]["status"] == "finished"
     assert store.rounds(sid)[0]["reward"] == 4.0
     assert store.interrupt_open("SIGTERM", 3.0) == 1
-    store.end_session(sid, total_reward=4.0, rounds_used=1, status="finished", reason=None,
-                      ended_at=4.0)
+    store.end_session(
+        sid, total_reward=4.0, rounds_used=1, status="finished", reason=None, ended_at=4.0
+    )
     s = store.session(sid)
     assert (s["status"], s["reason"], s["ended_at"], s["total_reward"]) == (
-        "interrupted", "SIGTERM", 3.0, None)
+        "interrupted",
+        "SIGTERM",
+        3.0,
+        None,
+    )
 
 
 def test_end_session_closes_rounds_left_open(store: ResultStore) -> None:
     sid = new_session(store)
     rid = store.start_round(sid, round_num=1, counted=True, started_at=0.0)
     for t in (1, 2, 3):
-        store.record_step(rid, turn_num=t, state=[], actions=[], reward=1.0,
-                          turn_sent_at=0.0, actions_received_at=0.0)
-    store.end_session(sid, total_reward=None, rounds_used=1, status="dropped",
-                      reason="client vanished", ended_at=9.0)
+        store.record_step(
+            rid,
+            turn_num=t,
+            state=[],
+            actions=[],
+            reward=1.0,
+            turn_sent_at=0.0,
+            actions_received_at=0.0,
+        )
+    store.end_session(
+        sid,
+        total_reward=None,
+        rounds_used=1,
+        status="dropped",
+        reason="client vanished",
+        ended_at=9.0,
+    )
     r = store.rounds(sid)[0]
     assert (r["status"], r["turns_used"], r["reward"], r["ended_at"]) == ("dropped", 3, None, 9.0)
 
@@ -217,14 +328,22 @@ def test_interrupt_open_marks_open_sessions_and_rounds(tmp_path: Path) -> None:
         done = new_session(store)
         rd = store.start_round(done, round_num=1, counted=True, started_at=0.0)
         store.end_round(rd, reward=1.0, turns_used=1, status="finished", ended_at=1.0)
-        store.end_session(done, total_reward=1.0, rounds_used=1, status="finished",
-                          reason=None, ended_at=2.0)
+        store.end_session(
+            done, total_reward=1.0, rounds_used=1, status="finished", reason=None, ended_at=2.0
+        )
         open1 = new_session(store)
         ra = store.start_round(open1, round_num=1, counted=True, started_at=0.0)
         store.end_round(ra, reward=2.0, turns_used=5, status="finished", ended_at=1.0)
         rb = store.start_round(open1, round_num=2, counted=True, started_at=1.0)
-        store.record_step(rb, turn_num=1, state=[], actions=[], reward=1.0,
-                          turn_sent_at=0.0, actions_received_at=0.0)
+        store.record_step(
+            rb,
+            turn_num=1,
+            state=[],
+            actions=[],
+            reward=1.0,
+            turn_sent_at=0.0,
+            actions_received_at=0.0,
+        )
         open2 = new_session(store)
         theirs = new_session(other_server)
         rt = other_server.start_round(theirs, round_num=1, counted=True, started_at=0.0)
@@ -237,15 +356,24 @@ def test_interrupt_open_marks_open_sessions_and_rounds(tmp_path: Path) -> None:
             assert by_id[sid]["reason"] == "server shut down (SIGINT)"
             assert by_id[sid]["ended_at"] == 50.0
         assert [(r["status"], r["turns_used"]) for r in store.rounds(open1)] == [
-            ("finished", 5), ("interrupted", 1)]
+            ("finished", 5),
+            ("interrupted", 1),
+        ]
         assert store.rounds(open1)[1]["ended_at"] == 50.0
         # the other server's live session is not ours to close
         assert by_id[theirs]["status"] == "open"
         assert store.rounds(theirs)[0]["status"] == "open"
         assert store.interrupt_open("again", 60.0) == 0
         # a step that arrives after the interruption is still kept
-        store.record_step(rb, turn_num=2, state=[], actions=[], reward=1.0,
-                          turn_sent_at=0.0, actions_received_at=0.0)
+        store.record_step(
+            rb,
+            turn_num=2,
+            state=[],
+            actions=[],
+            reward=1.0,
+            turn_sent_at=0.0,
+            actions_received_at=0.0,
+        )
         assert store.count_steps(rb) == 2
         # recovery after a crash closes everything still open in the file
         assert store.interrupt_open("recovered", 70.0, every_owner=True) == 1
@@ -274,8 +402,15 @@ def test_commit_is_visible_to_another_connection_at_once(tmp_path: Path) -> None
         sid = new_session(writer)
         rid = writer.start_round(sid, round_num=1, counted=True, started_at=0.0)
         for t in range(1, 6):
-            writer.record_step(rid, turn_num=t, state=[("s", (), t)], actions=[], reward=t,
-                               turn_sent_at=0.0, actions_received_at=0.0)
+            writer.record_step(
+                rid,
+                turn_num=t,
+                state=[("s", (), t)],
+                actions=[],
+                reward=t,
+                turn_sent_at=0.0,
+                actions_received_at=0.0,
+            )
             assert reader.count_steps(rid) == t
 
 
@@ -326,8 +461,11 @@ def read_lines(proc: subprocess.Popen[bytes], n: int, deadline: float) -> list[b
 def test_kill_9_loses_no_committed_step(tmp_path: Path) -> None:
     path = tmp_path / "killed.db"
     n = 150  # crosses round boundaries (40 steps a round)
-    proc = subprocess.Popen([sys.executable, "-c", CHILD, str(path), "victim", "1000"],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    proc = subprocess.Popen(
+        [sys.executable, "-c", CHILD, str(path), "victim", "1000"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+    )
     try:
         lines = read_lines(proc, n, time.monotonic() + 60)
     finally:
@@ -343,8 +481,11 @@ def test_kill_9_loses_no_committed_step(tmp_path: Path) -> None:
     with ResultStore(path) as store:
         (session,) = store.sessions()
         assert session["status"] == "open" and session["client_name"] == "victim"
-        stored = {(r["id"], st["turn_num"]): st for r in store.rounds(session["id"])
-                  for st in store.steps(r["id"])}
+        stored = {
+            (r["id"], st["turn_num"]): st
+            for r in store.rounds(session["id"])
+            for st in store.steps(r["id"])
+        }
         assert len(stored) >= n
         for rid, t in acknowledged:
             st = stored[(rid, t)]
@@ -368,8 +509,14 @@ def test_kill_9_loses_no_committed_step(tmp_path: Path) -> None:
 def test_two_processes_write_one_file(tmp_path: Path) -> None:
     path = tmp_path / "shared.db"
     ResultStore(path).close()  # schema first, so both children only write rows
-    procs = [subprocess.Popen([sys.executable, "-c", CHILD, str(path), f"p{k}", "5"],
-                              stdout=subprocess.PIPE, stderr=subprocess.PIPE) for k in (1, 2)]
+    procs = [
+        subprocess.Popen(
+            [sys.executable, "-c", CHILD, str(path), f"p{k}", "5"],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+        )
+        for k in (1, 2)
+    ]
     for p in procs:
         out, err = p.communicate(timeout=60)
         assert p.returncode == 0, err.decode(errors="replace")
@@ -427,7 +574,9 @@ def test_processes_opening_a_new_file_at_once_all_succeed(tmp_path: Path) -> Non
             assert store._conn.execute("PRAGMA journal_mode").fetchone()[0] == "wal"
 
 
-def test_setup_is_retried_on_a_lock_and_only_on_a_lock(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+def test_setup_is_retried_on_a_lock_and_only_on_a_lock(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
     real = ResultStore._setup
     calls = []
 

@@ -79,7 +79,9 @@ async def _finish(c: RawClient, rounds_left: int = 0) -> int:
             return turns
 
 
-async def _with_workers(config: ServerConfig, n: int, body: Callable[[int, WorkerPool], Any]) -> None:
+async def _with_workers(
+    config: ServerConfig, n: int, body: Callable[[int, WorkerPool], Any]
+) -> None:
     pools: list[WorkerPool] = []
     async with trio.open_nursery() as nursery:
         port = await nursery.start(partial(serve_with_workers, config, [str(RDDL)], n, pools=pools))
@@ -119,21 +121,32 @@ def test_sessions_are_numbered_seeded_and_recorded_as_in_one_process(tmp_path: P
         assert got[sid]["states"] == alone[sid]["states"], sid
     assert spread == [[], []]
     con = sqlite3.connect(db)
-    rows = con.execute("select server_session_id, seed, status, owner from sessions order by server_session_id").fetchall()
+    rows = con.execute(
+        "select server_session_id, seed, status, owner from sessions order by server_session_id"
+    ).fetchall()
     assert [(r[0], r[1], r[2]) for r in rows] == [(k, k - 1, "finished") for k in range(1, 7)]
-    assert con.execute("select count(*) from steps").fetchone()[0] == sum(len(r["states"]) for r in got.values()) == 6 * 2 * 5
+    assert (
+        con.execute("select count(*) from steps").fetchone()[0]
+        == sum(len(r["states"]) for r in got.values())
+        == 6 * 2 * 5
+    )
     text = (logs / f"logs-{_port_of(rows, logs)}.log").read_text()
     assert text.count("<client-info>") == 6
     assert text.count("<round-end>") == 12
     assert text.count("<session-end>") == 6
     lines = text.splitlines()
-    assert all(line.startswith("<?xml") or line.startswith("<") and line.endswith(">") for line in lines)
+    assert all(
+        line.startswith("<?xml") or line.startswith("<") and line.endswith(">") for line in lines
+    )
     files = sorted(tr.iterdir())
     assert len(files) == 6
     for f in files:
         meta, records = read_transcript(f)
         assert meta["session_id"] in got
-        assert sum(r.get("dir") == "s2c" and "eof" not in r.values() for r in records) == 1 + 2 * (1 + 5 + 1) + 1, records[-2:]
+        assert (
+            sum(r.get("dir") == "s2c" and "eof" not in r.values() for r in records)
+            == 1 + 2 * (1 + 5 + 1) + 1
+        ), records[-2:]
 
 
 def _port_of(rows: list[tuple[Any, ...]], logs: Path) -> str:
@@ -176,14 +189,21 @@ def test_a_dead_worker_costs_only_its_sessions(tmp_path: Path) -> None:
         await a.expect_eof()
         await a.close()
         assert await _finish(b) == 4
-        await _until(lambda: victim.alive and victim.ready.is_set() and victim.proc.pid != old_pid, "restarted")  # type: ignore[union-attr]
+        await _until(
+            lambda: victim.alive and victim.ready.is_set() and victim.proc.pid != old_pid,
+            "restarted",
+        )  # type: ignore[union-attr]
         assert pool.open_sessions == 0
         again = [await noop_session(port, client=f"later{i}") for i in range(2)]
         assert [r["session_id"] for r in again] == [3, 4]
 
     trio.run(_with_workers, config, 2, body)
     con = sqlite3.connect(db)
-    rows = dict(con.execute("select server_session_id, status || ': ' || coalesce(reason, '') from sessions").fetchall())
+    rows = dict(
+        con.execute(
+            "select server_session_id, status || ': ' || coalesce(reason, '') from sessions"
+        ).fetchall()
+    )
     assert rows[1].startswith("interrupted: worker process died (signal SIGKILL)")
     assert rows[2] == rows[3] == rows[4] == "finished: "
 
@@ -216,11 +236,16 @@ def test_cli_sigterm_interrupts_sessions_and_stops_the_workers(tmp_path: Path) -
         if proc.poll() is None:
             proc.kill()
     deadline = time.monotonic() + 10
-    while any(Path(f"/proc/{w}").exists() and "Z" not in _state(w) for w in workers) and time.monotonic() < deadline:
+    while (
+        any(Path(f"/proc/{w}").exists() and "Z" not in _state(w) for w in workers)
+        and time.monotonic() < deadline
+    ):
         time.sleep(0.05)
     assert not [w for w in workers if Path(f"/proc/{w}").exists() and "Z" not in _state(w)]
     con = sqlite3.connect(db)
-    assert con.execute("select status, count(distinct owner) from sessions").fetchall() == [("interrupted", 2)]
+    assert con.execute("select status, count(distinct owner) from sessions").fetchall() == [
+        ("interrupted", 2)
+    ]
 
 
 def _state(pid: int) -> str:
@@ -240,7 +265,9 @@ def _state(pid: int) -> str:
     ],
     ids=["default", "one-core", "individual-session"],
 )
-def test_workers_auto_is_the_default(prefix: list[str], extra: list[str], expected: int | None) -> None:
+def test_workers_auto_is_the_default(
+    prefix: list[str], extra: list[str], expected: int | None
+) -> None:
     import shutil
 
     if prefix and shutil.which(prefix[0]) is None:
@@ -250,8 +277,12 @@ def test_workers_auto_is_the_default(prefix: list[str], extra: list[str], expect
         if cores < 2:
             pytest.skip("one core here: auto is one process")
         expected = cores
-    proc = subprocess.Popen([*prefix, *SERVER, str(RDDL), "--port", "0", "--rounds", "1", *extra],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    proc = subprocess.Popen(
+        [*prefix, *SERVER, str(RDDL), "--port", "0", "--rounds", "1", *extra],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     try:
         assert proc.stdout is not None and proc.stdout.readline().startswith("listening on")
         children = _children(proc.pid)
@@ -284,8 +315,12 @@ def test_port_in_use_is_a_clear_error(workers: str) -> None:
         taken.bind(("127.0.0.1", 0))
         taken.listen()
         port = taken.getsockname()[1]
-        r = subprocess.run([*SERVER, str(RDDL), "--port", str(port), "--workers", workers],
-                           capture_output=True, text=True, timeout=60)
+        r = subprocess.run(
+            [*SERVER, str(RDDL), "--port", str(port), "--workers", workers],
+            capture_output=True,
+            text=True,
+            timeout=60,
+        )
     assert r.returncode == 1
     assert f"cannot listen on 127.0.0.1:{port}" in r.stderr and "Address already in use" in r.stderr
     assert "Traceback" not in r.stderr
@@ -296,6 +331,7 @@ def test_workers_of_a_killed_main_process_finish_their_sessions_and_exit() -> No
     proc, port = start("--rounds", "1", "--workers", "2", "-q")
     workers = _children(proc.pid)
     try:
+
         async def orphaned() -> None:
             c = await _held(port, "orphan")
             os.kill(proc.pid, signal.SIGKILL)
@@ -365,7 +401,9 @@ def test_a_hung_worker_never_stops_the_accept_loop() -> None:
     trio.run(_with_workers, config, 2, body)
 
 
-def test_when_every_worker_dies_repeatedly_the_server_stops(monkeypatch: pytest.MonkeyPatch) -> None:
+def test_when_every_worker_dies_repeatedly_the_server_stops(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
     import ippc.server.workers as W
 
     monkeypatch.setattr(W, "MAX_RAPID_DEATHS", 2)
@@ -375,7 +413,12 @@ def test_when_every_worker_dies_repeatedly_the_server_stops(monkeypatch: pytest.
         with trio.fail_after(60):
             while True:
                 for w in pool.workers:
-                    if w.alive and w.ready.is_set() and w.proc is not None and w.proc.poll() is None:
+                    if (
+                        w.alive
+                        and w.ready.is_set()
+                        and w.proc is not None
+                        and w.proc.poll() is None
+                    ):
                         os.kill(w.proc.pid, signal.SIGKILL)
                 await trio.sleep(0.05)
 
@@ -387,7 +430,9 @@ def test_when_every_worker_dies_repeatedly_the_server_stops(monkeypatch: pytest.
     assert isinstance(leaf, W.WorkerError) and "every worker process died repeatedly" in str(leaf)
 
 
-def test_a_restarted_worker_that_is_never_ready_is_killed_and_restarted(monkeypatch: pytest.MonkeyPatch) -> None:
+def test_a_restarted_worker_that_is_never_ready_is_killed_and_restarted(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
     """The first restart of a killed worker is stopped (SIGSTOP) before it
     can say it is ready: it is given no sessions, killed after
     RESTART_READY_TIMEOUT (1.5 s here), and started once more; that one
@@ -429,7 +474,11 @@ def test_a_restarted_worker_that_is_never_ready_is_killed_and_restarted(monkeypa
         # the stopped worker is given no session
         done = [await noop_session(port, client=f"meanwhile{i}") for i in range(2)]
         assert [r["session_id"] for r in done] == [1, 2]
-        await _until(lambda: w0.proc.pid not in (first, stopped[0]) and w0.ready.is_set(), "restarted again", 30)  # type: ignore[union-attr]
+        await _until(
+            lambda: w0.proc.pid not in (first, stopped[0]) and w0.ready.is_set(),
+            "restarted again",
+            30,
+        )  # type: ignore[union-attr]
         assert len(w0.deaths) == 2 and not w0.given_up
         await _until(lambda: pool.open_sessions == 0, "sessions 1 and 2 reported ended")
         a = await _held(port, "a")
