@@ -9,6 +9,7 @@ import gzip
 import os
 import re
 import shutil
+import signal
 import socket
 import threading
 import time
@@ -393,6 +394,10 @@ def test_keyboard_interrupt_kills_the_group(
     prost_dir: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     monkeypatch.setenv("FAKE_PROST_MODE", "hang")
+    # A process started in the background by a non-interactive shell (`make test &`)
+    # inherits SIGINT ignored, and then interrupt_main does nothing: give the test
+    # Python's own handler whatever the caller left.
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
     planner = ProstPlanner(binary=str(prost_dir / "search"), grace="0.4")
     log = tmp_path / "prost.log"
     timer = threading.Timer(1.0, _thread.interrupt_main)
@@ -403,6 +408,7 @@ def test_keyboard_interrupt_kills_the_group(
                 run(planner, server, "sysadmin_inst_mdp__1", log, timeout=15.0)
         finally:
             timer.cancel()
+            signal.signal(signal.SIGINT, previous)
     pid, child = fake_pids(log)
     assert not alive(pid) and not alive(child)
 
