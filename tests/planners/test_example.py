@@ -1,5 +1,5 @@
-"""The example planner of the README (greedy_example.py) works: legal
-actions, deterministic given the session seed."""
+"""The example planner of docs/planners.md works: its code is taken from the page's
+fenced block and run (legal actions, deterministic given the session seed)."""
 
 from __future__ import annotations
 
@@ -8,14 +8,26 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from ippc.planners import Observation, PlannerError, SessionInfo, make_planner
+from ippc.planners import Observation, Planner, PlannerError, SessionInfo, make_planner
 from ippc.rddl import load
 from ippc.rddl.simulator import Simulator
 from ippc.rddl.wire import WireCodec
 
-from .greedy_example import GreedyPlanner
+from ..docs import REPO, blocks
 
-REPO = Path(__file__).resolve().parents[2]
+
+def _greedy_class() -> type[Planner]:
+    """GreedyPlanner, defined by running the page's block that defines it."""
+    text = (REPO / "docs" / "planners.md").read_text(encoding="utf-8")
+    (block,) = [b for b in blocks(text) if b.lang == "python" and "class GreedyPlanner" in b.text]
+    namespace: dict[str, object] = {"__name__": "docs_planners_example"}
+    exec(compile(block.text, f"docs/planners.md:{block.line}", "exec"), namespace)
+    cls = namespace["GreedyPlanner"]
+    assert isinstance(cls, type) and issubclass(cls, Planner)
+    return cls
+
+
+GreedyPlanner = _greedy_class()
 
 
 @pytest.mark.parametrize("name", ["print_fetch_inst_1", "elevators_inst_mdp__1"])
