@@ -18,7 +18,7 @@ from typing import Any
 import trio
 
 from .config import ServerConfig
-from .registry import Registry
+from .environment import Environments
 from .session import Services, Session
 
 log = logging.getLogger(__name__)
@@ -26,7 +26,7 @@ log = logging.getLogger(__name__)
 
 def open_services(
     config: ServerConfig,
-    registry: Registry,
+    registry: Environments,
     port: int,
     *,
     owner: str | None = None,
@@ -73,7 +73,7 @@ def close_services(services: Services, reason: str, close: bool = True) -> None:
 
 async def serve(
     config: ServerConfig,
-    registry: Registry,
+    registry: Environments,
     *,
     task_status: trio.TaskStatus[int] = trio.TASK_STATUS_IGNORED,
     services: Services | None = None,

@@ -24,6 +24,7 @@ from ..rddl import check_files
 from ..rddl.model import Model
 from ..rddl.simulator import Simulator, State
 from ..rddl.wire import WireCodec, WireFluent
+from .environment import Environment, Episode, SimulatedEpisode
 
 log = logging.getLogger(__name__)
 
@@ -36,8 +37,8 @@ _NAME = re.compile(r"^[A-Za-z0-9_\-.]+$")
 
 
 @dataclass
-class Instance:
-    """One servable instance."""
+class Instance(Environment):
+    """One servable instance: a simulated environment (rddlsim's)."""
 
     name: str
     model: Model
@@ -53,9 +54,10 @@ class Instance:
     _turn_chars: int = field(default=0, repr=False)
     _key_names: tuple[str, ...] = field(default=(), repr=False)
 
-    @property
-    def horizon(self) -> int | None:
-        return self.model.horizon
+    async def open(self, seed: int) -> Episode:
+        """A simulated episode with the session's generator (`seed`)."""
+        sim, codec = await self.compiled()
+        return SimulatedEpisode(self, sim, codec, seed)
 
     async def compiled(self) -> tuple[Simulator, WireCodec]:
         """The simulator and wire codec, compiled once (in a worker thread,

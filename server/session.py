@@ -24,7 +24,6 @@ import time
 from dataclasses import dataclass, field
 from typing import Any
 
-import numpy as np
 import trio
 
 from ..protocol import (
@@ -45,17 +44,11 @@ from ..protocol import (
     encode,
 )
 from ..protocol import NEED_DATA as _NEED_DATA
-from ..protocol.values import parse_value
-from ..rddl.simulator import SimulationError, Simulator, State
-from ..rddl.wire import WireCodec, WireError, WireFluent, value_kind
 from .config import ServerConfig
-from .registry import Instance, Registry, UnknownInstance
+from .environment import Environment, Environments, Episode, SessionDropped, StepFailed
+from .registry import UnknownInstance
 
 log = logging.getLogger(__name__)
-
-
-class SessionDropped(Exception):
-    """The session cannot go on; the message says why (for the log)."""
 
 
 @dataclass
@@ -63,7 +56,7 @@ class Services:
     """What every session shares: settings, instances, result sinks."""
 
     config: ServerConfig
-    registry: Registry
+    registry: Environments  # a Registry, or rddl-dispatch's one environment
     store: Any = None  # server.store.ResultStore or None
     rddlsim_log: Any = None  # server.records.RddlsimLog or None
     transcripts: Any = None  # callable(session_id, meta) -> TranscriptWriter, or None
@@ -304,6 +297,8 @@ class Session:
         self.total_reward = 0.0
         self.status = "open"
         self._round = _Round(0, counted=False)
+        self._episode: Episode | None = None
+        self._stop = False  # the environment asked to end the session after this round
 
     # -- helpers
 
@@ -356,6 +351,8 @@ class Session:
             raise
         finally:
             svc.open_sessions.pop(self.id, None)
+            if self._episode is not None:
+                self._episode.close()
             if self.channel.transcript is not None:
                 self.channel._write("eof", "s2c", conn=self.id, t=self.channel._t())  # we close
                 self.channel.transcript.close()
@@ -412,9 +409,9 @@ class Session:
             instance = svc.registry.get(request.problem_name)
         except UnknownInstance as err:
             raise SessionDropped(str(err)) from None
-        sim, codec = await instance.compiled()
         seed = cfg.seed + self.id - 1
-        rng = np.random.default_rng(seed)
+        episode = await instance.open(seed)
+        self._episode = episode
         if svc.transcripts is not None:
             self.channel.start_transcript(
                 svc.transcripts(
@@ -453,12 +450,12 @@ class Session:
 
         counted = 0
         out_of_time = False
-        while counted < cfg.rounds and not out_of_time:
+        while counted < cfg.rounds and not out_of_time and not self._stop:
             req = await self._expect(RoundRequest)
             practice = cfg.monitor_execution and req.execute_policy is not True
             number = counted if practice else counted + 1
             rnd = _Round(number, counted=not practice)
-            out_of_time = await self._play_round(instance, sim, codec, rng, rnd)
+            out_of_time = await self._play_round(instance, episode, rnd)
             if not practice:
                 counted += 1
                 self.total_reward += rnd.reward
@@ -497,14 +494,7 @@ class Session:
         if self.services.rddlsim_log is not None:
             self.services.rddlsim_log.message(doc)
 
-    async def _play_round(
-        self,
-        instance: Instance,
-        sim: Simulator,
-        codec: WireCodec,
-        rng: np.random.Generator,
-        rnd: _Round,
-    ) -> bool:
+    async def _play_round(self, instance: Environment, episode: Episode, rnd: _Round) -> bool:
         """One round; returns whether the session ran out of time."""
         cfg = self.config
         store = self.services.store
@@ -520,58 +510,46 @@ class Session:
             self.round_db_id = store.start_round(
                 self.db_id, round_num=rnd.number, counted=rnd.counted, started_at=time.time()
             )
-        state: State = sim.initial_state(1)
-        observation: dict[str, np.ndarray] | None = None
+        episode.start_round()
         channel = self.channel
-        invariants = bool(sim._invariants)
         discount = instance.model.discount
         horizon = instance.horizon
         cur_discount = 1.0
         out_of_time = False
-        # what a noop decodes to, the same every turn (stepped as None: the
-        # simulator's own cached defaults)
-        noop = codec.actions_from(())
-        prepare = sim.prepare
+        turn = episode.turn
+        thinking = episode.thinking
+        act = episode.act
         while True:
-            sent, xml = instance.turn_fluents(codec, state, observation)
+            sent, xml = turn()
             await channel.send_turn(rnd.turns + 1, float(self._ms()), rnd.immediate, xml)
             if store is not None:
                 sent_at = time.time()
-            # while the client thinks: the draws of the next step and all
-            # that the state alone decides (exact whatever the actions are)
-            prepared = prepare(state, rng)
+            # while the client thinks: what the environment can do without its actions
+            thinking()
             actions = await self._expect(Actions)
             if store is not None:
                 received_at = time.time()
-            decoded = self._decode_actions(codec, actions) if actions.actions else noop
-            why = codec.check(state, decoded)
-            if why is not None:
-                if prepared is not None:
-                    sim.unprepare(prepared, rng)  # this step never happens
+            try:
+                outcome = await act(actions)
+            except StepFailed as err:
+                raise SessionDropped(
+                    f"simulation error in round {rnd.number}, turn {rnd.turns + 1}: {err}"
+                ) from None
+            if outcome.illegal is not None:
                 if cfg.individual_session:
                     # rddlsim exits (code 1) here in individual-session mode
-                    raise SessionDropped(f"illegal actions in individual-session mode: {why}")
+                    raise SessionDropped(
+                        f"illegal actions in individual-session mode: {outcome.illegal}"
+                    )
                 log.info(
                     "%s round %d: illegal actions end the round: %s",
                     self.describe(),
                     rnd.number,
-                    why,
+                    outcome.illegal,
                 )
                 rnd.status = "illegal-action"
                 break
-            try:
-                # the constraints were checked above; the step checks the
-                # invariants (and keeps numpy's floating-point warnings quiet)
-                arrays = None if decoded is noop else decoded.arrays
-                if prepared is not None:
-                    step = sim.finish(prepared, arrays, check=invariants)
-                else:
-                    step = sim.step(state, arrays, rng, check=invariants)
-            except SimulationError as err:
-                raise SessionDropped(
-                    f"simulation error in round {rnd.number}, turn {rnd.turns + 1}: {err}"
-                ) from None
-            reward = float(step.reward[0])
+            reward = outcome.reward
             rnd.immediate = reward
             rnd.reward += cur_discount * reward
             cur_discount *= discount
@@ -585,17 +563,19 @@ class Session:
                     reward=reward,
                     turn_sent_at=sent_at,
                     actions_received_at=received_at,
+                    outcome=outcome.record,
+                    execution_seconds=outcome.execution_seconds,
                 )
-            state = step.next_state
-            observation = step.observation
             if self._out_of_time():
                 out_of_time = True
                 rnd.status = "timeout"
                 break
+            if outcome.stop:
+                self._stop = True
             if horizon is not None and rnd.turns >= horizon:
                 break
-            if bool(step.done[0]):
-                rnd.status = "terminal"
+            if outcome.end is not None:
+                rnd.status = outcome.end
                 break
         end = RoundEnd(
             instance_name=instance.name,
@@ -619,31 +599,6 @@ class Session:
         await self.channel.send(end)
         self._log_document(encode(end))
         return out_of_time
-
-    def _decode_actions(self, codec: WireCodec, actions: Actions) -> Any:
-        """Received actions -> arrays, with rddlsim's reading of values."""
-        model = codec.model
-        typed: list[WireFluent] = []
-        for a in actions.actions:
-            p = model.pvariables.get(a.name)
-            if p is None:
-                raise SessionDropped(f"unknown action {a.name!r} in {_show(actions)}")
-            try:
-                value = parse_value(str(a.value), value_kind(model, p))
-            except ValueError:
-                raise SessionDropped(
-                    f"action {a.name!r}: value {a.value!r} is not a {p.range}"
-                ) from None
-            typed.append((a.name, tuple(a.args), value))
-        try:
-            return codec.actions_from(typed)
-        except WireError as err:
-            raise SessionDropped(f"{err} in {_show(actions)}") from None
-
-
-def _show(actions: Actions, limit: int = 200) -> str:
-    text = encode(actions, declaration=False).decode("ascii", "replace")
-    return text if len(text) <= limit else text[:limit] + "..."
 
 
 __all__ = ["Services", "Session", "SessionDropped", "MAX_MESSAGE_SIZE"]

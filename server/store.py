@@ -11,10 +11,13 @@ failure can lose the last commits. A step is therefore safe once ``record_step``
 returns, and the server sends its next message only after that.
 
 Three tables (see ``_SCHEMA``): ``sessions`` (one row per session-request that named an
-instance), ``rounds`` (one per round-init) and ``steps`` (one per simulated transition:
-the state the server sent in the turn, the actions the client answered and the reward
-of that transition). State and actions are JSON text, a list of ``[name, [args...],
-value]``. Rows start with status ``open``; ``end_round``/``end_session`` close them and
+instance), ``rounds`` (one per round-init) and ``steps`` (one per transition: the state
+the server sent in the turn, the actions the client answered and the reward of that
+transition). State and actions are JSON text, a list of ``[name, [args...], value]``.
+A step played by rddl-dispatch also has ``outcome`` (JSON: what each action's handler
+reported, see ``ippc.dispatch``) and ``execution_seconds`` (how long the actions took);
+both are NULL for a simulated step. Planning time is ``actions_received_at -
+turn_sent_at``. Rows start with status ``open``; ``end_round``/``end_session`` close them and
 ``interrupt_open`` closes whatever a shutting-down server leaves open.
 
 Several processes may open the same file (a busy timeout makes writers wait for each
@@ -50,8 +53,9 @@ __all__ = [
 
 log = logging.getLogger(__name__)
 
-#: Value of ``PRAGMA user_version`` for the schema below.
-SCHEMA_VERSION = 1
+#: Value of ``PRAGMA user_version`` for the schema below. Version 1 (no ``outcome`` and
+#: ``execution_seconds`` in ``steps``) is upgraded in place when opened.
+SCHEMA_VERSION = 2
 
 #: Final statuses of a session (``open`` while it runs).
 SESSION_STATUSES = frozenset({"finished", "timeout", "dropped", "interrupted"})
@@ -103,9 +107,17 @@ CREATE TABLE IF NOT EXISTS steps (
     reward              REAL    NOT NULL, -- reward of this transition
     turn_sent_at        REAL    NOT NULL,
     actions_received_at REAL    NOT NULL,
+    outcome             TEXT,             -- JSON, rddl-dispatch's steps only
+    execution_seconds   REAL,             -- rddl-dispatch's steps only
     UNIQUE (round_id, turn_num)
 );
 """
+
+# What turns a version-1 database into version 2 (columns added, rows kept).
+_UPGRADE_1_TO_2 = (
+    "ALTER TABLE steps ADD COLUMN outcome TEXT",
+    "ALTER TABLE steps ADD COLUMN execution_seconds REAL",
+)
 
 Fluent = tuple[str, tuple[str, ...], object]
 
@@ -220,7 +232,11 @@ class ResultStore:
                     f"result store {self.path} has schema version {version}; this ippc "
                     f"knows only up to {SCHEMA_VERSION}"
                 )
-            if version < SCHEMA_VERSION:
+            if version == 1:
+                for statement in _UPGRADE_1_TO_2:
+                    cur.execute(statement)
+                cur.execute(f"PRAGMA user_version = {SCHEMA_VERSION}")
+            elif version < SCHEMA_VERSION:
                 for statement in _SCHEMA.split(";"):
                     if statement.strip():
                         cur.execute(statement)
@@ -318,9 +334,12 @@ class ResultStore:
         reward: float,
         turn_sent_at: float,
         actions_received_at: float,
+        outcome: object = None,
+        execution_seconds: float | None = None,
     ) -> None:
         """Record one transition: the state sent in turn ``turn_num``, the actions the client
-        answered and the reward of that transition. Committed when this returns.
+        answered and the reward of that transition; for rddl-dispatch also the outcome
+        (JSON-able) and the execution time. Committed when this returns.
 
         Raises ``sqlite3.IntegrityError`` for an unknown round or a turn recorded twice.
         A step is accepted even if its round was already closed (by ``interrupt_open``
@@ -328,7 +347,7 @@ class ResultStore:
         """
         self._one(
             "INSERT INTO steps (round_id, turn_num, state, actions, reward, turn_sent_at,"
-            " actions_received_at) VALUES (?, ?, ?, ?, ?, ?, ?)",
+            " actions_received_at, outcome, execution_seconds) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?)",
             (
                 int(round_),
                 int(turn_num),
@@ -337,6 +356,8 @@ class ResultStore:
                 _real(reward),
                 _real(turn_sent_at),
                 _real(actions_received_at),
+                None if outcome is None else _ENCODER.encode(outcome),
+                _opt_real(execution_seconds),
             ),
         )
 
@@ -487,13 +508,16 @@ class ResultStore:
 
     def steps(self, round_: int) -> list[dict[str, Any]]:
         """The steps of a round by turn number; ``state`` and ``actions`` decoded to lists
-        of ``(name, args, value)`` tuples."""
+        of ``(name, args, value)`` tuples, ``outcome`` decoded from JSON (None for a
+        simulated step)."""
         rows = self._rows(
             "SELECT * FROM steps WHERE round_id = ? ORDER BY turn_num", (int(round_),)
         )
         for r in rows:
             r["state"] = decode_fluents(r["state"])
             r["actions"] = decode_fluents(r["actions"])
+            if r["outcome"] is not None:
+                r["outcome"] = json.loads(r["outcome"])
         return rows
 
     def count_steps(self, round_: int | None = None) -> int:

@@ -149,6 +149,7 @@ def test_round_trip_of_everything(store: ResultStore) -> None:
     assert steps[0]["actions_received_at"] == 1700000001.75
     assert steps[1]["state"] == state[:1] and steps[1]["actions"] == []
     assert steps[1]["reward"] == -0.75
+    assert steps[0]["outcome"] is None and steps[0]["execution_seconds"] is None
     assert store.steps(r2) == []
     assert store.count_steps() == 2 and store.count_steps(r1) == 2
 
@@ -394,6 +395,68 @@ def test_reopen_keeps_data_and_refuses_newer_schema(tmp_path: Path) -> None:
     conn.close()
     with pytest.raises(RuntimeError, match="schema version"):
         ResultStore(path)
+
+
+def test_dispatch_steps_keep_their_outcome_and_execution_time(store: ResultStore) -> None:
+    sid = new_session(store)
+    rid = store.start_round(sid, round_num=1, counted=True, started_at=1.0)
+    outcome = {"actions": [{"action": "goto(r1,a,b)", "outcome": "failed"}], "goal": False}
+    store.record_step(
+        rid,
+        turn_num=1,
+        state=[],
+        actions=[("goto", ("r1", "a", "b"), True)],
+        reward=-1.0,
+        turn_sent_at=2.0,
+        actions_received_at=2.5,
+        outcome=outcome,
+        execution_seconds=np.float64(3.25),
+    )
+    (step,) = store.steps(rid)
+    assert step["outcome"] == outcome
+    assert step["execution_seconds"] == 3.25
+
+
+def test_a_version_1_database_is_upgraded_in_place(tmp_path: Path) -> None:
+    path = tmp_path / "v1.db"
+    with ResultStore(path) as store:
+        sid = new_session(store)
+        rid = store.start_round(sid, round_num=1, counted=True, started_at=1.0)
+        store.record_step(
+            rid,
+            turn_num=1,
+            state=[("x", (), True)],
+            actions=[],
+            reward=1.5,
+            turn_sent_at=2.0,
+            actions_received_at=2.5,
+        )
+    # what version 1 of the schema was: steps without the two columns
+    conn = sqlite3.connect(path)
+    conn.execute("ALTER TABLE steps DROP COLUMN outcome")
+    conn.execute("ALTER TABLE steps DROP COLUMN execution_seconds")
+    conn.execute("PRAGMA user_version = 1")
+    conn.commit()
+    conn.close()
+    with ResultStore(path) as store:
+        (step,) = store.steps(rid)
+        assert step["state"] == [("x", (), True)] and step["reward"] == 1.5
+        assert step["outcome"] is None and step["execution_seconds"] is None
+        store.record_step(
+            rid,
+            turn_num=2,
+            state=[],
+            actions=[],
+            reward=0.0,
+            turn_sent_at=3.0,
+            actions_received_at=3.5,
+            outcome={"goal": True},
+            execution_seconds=0.5,
+        )
+        assert store.steps(rid)[1]["outcome"] == {"goal": True}
+    conn = sqlite3.connect(path)
+    assert conn.execute("PRAGMA user_version").fetchone()[0] == SCHEMA_VERSION == 2
+    conn.close()
 
 
 def test_commit_is_visible_to_another_connection_at_once(tmp_path: Path) -> None:
