@@ -1,0 +1,367 @@
+"""The knowledge base: an RDDL instance's domain and its current state.
+
+`KnowledgeBase.from_files(domain, instance)` loads a domain and an
+instance through `ippc.rddl` and answers ROSPlan's knowledge-base services
+under their names (`domain_name`, `types`, `predicates`, `functions`,
+`operators`, `operator`, `goal`, `metric`, `instances`, `enum_values`, the
+RDDL parameters, `immediate_reward`), and keeps the state: every grounding
+of every state fluent and non-fluent, closed world (a false fact is stored
+as false), changed by batches of updates that are applied atomically, with
+subscribers told of every change and of who made it.
+
+Threads: every public method takes one lock, so sensing threads, a server
+and the dispatcher may share one knowledge base. Subscribers are called
+after the lock is released, in the thread that applied the batch, in the
+order they subscribed; one that raises is logged and the others still run.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import threading
+from collections.abc import Callable, Iterable, Sequence
+from pathlib import Path
+
+import numpy as np
+
+from ..rddl.loader import load_pair
+from ..rddl.model import ACTION, NON_FLUENT, STATE, GroundKey, Model, Value
+from ..rddl.simulator import SimulationError, Simulator, State
+from .evaluate import Evaluator, NotEvaluable
+from .goal import Goal, GoalSource, find_goal, ground_goal
+from .store import Change, KBError, Store, Update
+
+log = logging.getLogger(__name__)
+
+Subscriber = Callable[[list[Change], str], None]
+
+
+class KnowledgeBase:
+    """The symbolic state of one RDDL instance, with ROSPlan's queries."""
+
+    def __init__(self, model: Model):
+        self.model = model
+        self._lock = threading.RLock()
+        self._store = Store(model)
+        self._subscribers: list[Subscriber] = []
+        self._sensed: set[str] = set()
+        self._horizon = model.horizon
+        self._discount = model.discount
+        self._max_nondef = model.max_nondef_actions
+        self._evaluator = Evaluator(model, self._store.get, self._store.pvars.__contains__)
+        self._goal_source: GoalSource | None = find_goal(model)
+        self._goal: Goal | None = None  # grounded on first use, again after non-fluents change
+        self._simulator: Simulator | None = None  # built on first use, for R(s, a)
+
+    # ---------------------------------------------------------------- loading
+
+    @classmethod
+    def from_files(cls, domain: str | Path, instance: str | Path) -> KnowledgeBase:
+        """Load `domain` and `instance` (one instance in the file) through
+        `ippc.rddl`; an error in either raises `RDDLError` with every
+        problem found, by file, line and column."""
+        return cls(load_pair(domain, instance))
+
+    @classmethod
+    def from_model(cls, model: Model) -> KnowledgeBase:
+        """A knowledge base whose state starts at the model's initial state."""
+        return cls(model)
+
+    # ------------------------------------------------------------------ state
+
+    def get(self, fluent: str, args: Sequence[str] = ()) -> Value:
+        """The value of `fluent(args)`: bool, int, float, or an enum value
+        ("@name") or object name. KBError for an unknown fluent, a wrong
+        number of arguments, or an object that is not of the parameter's type."""
+        with self._lock:
+            return self._store.get(fluent, tuple(args))
+
+    def facts(
+        self, fluent: str | None = None, *, non_fluents: bool = False
+    ) -> dict[GroundKey, Value]:
+        """Every grounding of `fluent`, or of every state fluent (and, with
+        `non_fluents`, every non-fluent), with its value: false facts included."""
+        with self._lock:
+            st = self._store
+            if fluent is not None:
+                pvars = [st.pvar(fluent)]
+            else:
+                kinds = (STATE, NON_FLUENT) if non_fluents else (STATE,)
+                pvars = [p for p in st.pvars.values() if p.kind in kinds]
+            return {(p.name, args): v for p in pvars for args, v in st.items(p)}
+
+    def is_state_fluent(self, fluent: str) -> bool:
+        """Whether `fluent` is a state fluent (not a non-fluent); KBError if
+        the knowledge base does not store it."""
+        return self._store.pvar(fluent).kind == STATE
+
+    def apply(self, updates: Iterable[Update], source: str) -> list[Change]:
+        """Apply a batch of updates, all or nothing.
+
+        A bad update raises KBError naming it (its position, its fluent and
+        what is wrong), and nothing changes. Returns the groundings whose
+        value really changed (an update to the current value is no change);
+        subscribers hear of the batch once, with `source`, if it changed
+        anything. Changing a non-fluent is allowed (ROSPlan's clients fill
+        distances in at start-up): the goal is grounded again."""
+        with self._lock:
+            writes = self._store.prepare(updates)
+            changes = self._store.commit(writes)
+            self._after_change(changes)
+        self._notify(changes, source)
+        return changes
+
+    def subscribe(self, callback: Subscriber) -> Callable[[], None]:
+        """Call `callback(changes, source)` after every batch that changed
+        something; returns the function that unsubscribes it."""
+        with self._lock:
+            self._subscribers.append(callback)
+
+        def unsubscribe() -> None:
+            with self._lock:
+                if callback in self._subscribers:
+                    self._subscribers.remove(callback)
+
+        return unsubscribe
+
+    def _notify(self, changes: list[Change], source: str) -> None:
+        if not changes:
+            return
+        with self._lock:
+            subscribers = list(self._subscribers)
+        for cb in subscribers:
+            try:
+                cb(changes, source)
+            except Exception:
+                log.exception("knowledge-base subscriber %r failed on a change by %s", cb, source)
+
+    def _after_change(self, changes: list[Change]) -> None:
+        if any(self._store.pvars[c.fluent].kind == NON_FLUENT for c in changes):
+            self._goal = None
+            self._simulator = None  # it folds non-fluents into constants
+
+    # -- sensed flags
+
+    def set_sensed(self, fluent: str, sensed: bool = True) -> None:
+        """Mark `fluent` as sensed (its value comes from sensing, so action
+        handlers must not apply effects to it) or not."""
+        with self._lock:
+            p = self._store.pvar(fluent)
+            if sensed:
+                self._sensed.add(p.name)
+            else:
+                self._sensed.discard(p.name)
+
+    def is_sensed(self, fluent: str) -> bool:
+        """Whether `fluent` is marked as sensed (KBError if unknown)."""
+        with self._lock:
+            return self._store.pvar(fluent).name in self._sensed
+
+    def sensed_fluents(self) -> frozenset[str]:
+        """The names of the fluents marked as sensed."""
+        with self._lock:
+            return frozenset(self._sensed)
+
+    # -- bridges to the simulator
+
+    def to_state(self) -> State:
+        """The current state as a simulator `State` (a batch of one)."""
+        with self._lock:
+            return State(
+                {p.name: self._store.arrays[p.name][None].copy() for p in self.model.fluents(STATE)}
+            )
+
+    def load_state(self, state: State, source: str) -> list[Change]:
+        """Replace the state fluents by those of `state` (a batch of one, as
+        the simulator makes it) in one batch; the changes."""
+        if state.batch != 1:
+            raise KBError(f"load_state takes a batch of one state, not {state.batch}", "bad-state")
+        with self._lock:
+            st = self._store
+            new: dict[str, np.ndarray] = {}
+            for p in self.model.fluents(STATE):
+                if p.name not in state.values:
+                    raise KBError(f"the state has no values for '{p.name}'", "bad-state")
+                arr = np.asarray(state.values[p.name])[0]
+                want = st.arrays[p.name]
+                if arr.shape != want.shape:
+                    raise KBError(
+                        f"'{p.name}' has shape {arr.shape} in the state, not {want.shape}",
+                        "bad-state",
+                    )
+                new[p.name] = arr.astype(want.dtype, copy=False)
+            changes = st.replace(new)
+        self._notify(changes, source)
+        return changes
+
+    def to_model(self) -> Model:
+        """The model of the current knowledge: the loaded model with the
+        current non-fluent values, the current state as its initial state,
+        and the current horizon, discount and max-nondef-actions."""
+        with self._lock:
+            st = self._store
+            nf: dict[GroundKey, Value] = {}
+            init: dict[GroundKey, Value] = {}
+            for p in st.pvars.values():
+                default = self.model.default_of(p)
+                out = nf if p.kind == NON_FLUENT else init
+                for args, v in st.items(p):
+                    if v != default:
+                        out[(p.name, args)] = v
+            return dataclasses.replace(
+                self.model,
+                non_fluent_values=nf,
+                init_state=init,
+                horizon=self._horizon,
+                discount=self._discount,
+                max_nondef_actions=self._max_nondef,
+            )
+
+    # ------------------------------------------------------- RDDL parameters
+
+    @property
+    def horizon(self) -> int | None:
+        """The horizon (None: unbounded, or rddlsim's terminate-when)."""
+        return self._horizon
+
+    @horizon.setter
+    def horizon(self, value: int | None) -> None:
+        if value is not None and (
+            not isinstance(value, int) or isinstance(value, bool) or value < 1
+        ):
+            raise KBError(f"the horizon must be a positive integer, not {value!r}", "bad-value")
+        self._horizon = value
+
+    @property
+    def discount(self) -> float:
+        """The discount factor."""
+        return self._discount
+
+    @discount.setter
+    def discount(self, value: float) -> None:
+        if (
+            not isinstance(value, (int, float))
+            or isinstance(value, bool)
+            or not 0.0 <= float(value) <= 1.0
+        ):
+            raise KBError(f"the discount must be a number in [0, 1], not {value!r}", "bad-value")
+        self._discount = float(value)
+
+    @property
+    def max_nondef_actions(self) -> int | None:
+        """How many actions may differ from their default per step (None: unbounded)."""
+        return self._max_nondef
+
+    @max_nondef_actions.setter
+    def max_nondef_actions(self, value: int | None) -> None:
+        if value is not None and (
+            not isinstance(value, int) or isinstance(value, bool) or value < 1
+        ):
+            raise KBError(
+                f"max-nondef-actions must be a positive integer or unbounded, not {value!r}",
+                "bad-value",
+            )
+        self._max_nondef = value
+
+    # ------------------------------------------------------------------ goal
+
+    def goal(self) -> Goal | None:
+        """The goal (ROSPlan's state/goals): the ground facts it asks for on
+        the current non-fluents, the lifted formula and what could not be
+        put into facts; None when the domain has no goal."""
+        with self._lock:
+            if self._goal_source is None:
+                return None
+            if self._goal is None:
+                self._goal = ground_goal(
+                    self.model, self._goal_source, self._evaluator, self.is_state_fluent
+                )
+            return self._goal
+
+    def goal_holds(self) -> bool | None:
+        """Whether the goal holds in the current state: the `goal` fluent is
+        true, or its condition holds now (decided on the whole formula, not
+        only the facts `goal()` lists). None when the domain has no goal."""
+        with self._lock:
+            where = self._goal_source
+            if where is None:
+                return None
+            if where.fluent is not None and self._store.get(where.fluent) is True:
+                return True
+            if where.formula is None:
+                return False
+            try:
+                return bool(self._evaluator(where.formula, {}))
+            except NotEvaluable as err:
+                raise KBError(f"the goal at {where.loc} cannot be decided: {err}") from None
+
+    # ---------------------------------------------------------------- reward
+
+    def simulator(self) -> Simulator:
+        """A simulator of the current non-fluents (built once, again after
+        a non-fluent changes)."""
+        with self._lock:
+            if self._simulator is None:
+                self._simulator = Simulator(self.to_model())
+            return self._simulator
+
+    def parse_action(self, text: str) -> tuple[str, tuple[str, ...], Value]:
+        """A grounded action written as ROSPlan's clients write it,
+        "goto_waypoint(kenny, a, b)" (value true), or "name(args) = value"."""
+        head, _, value_text = text.partition("=")
+        head = head.strip()
+        name, _, rest = head.partition("(")
+        name = name.strip()
+        args: tuple[str, ...] = ()
+        if rest:
+            if not rest.endswith(")"):
+                raise KBError(f"bad action '{text}': expected name(arg, ...)", "bad-action")
+            args = tuple(a.strip() for a in rest[:-1].split(",") if a.strip())
+        p = self.model.pvariables.get(name)
+        if p is None or p.kind != ACTION:
+            raise KBError(f"'{name}' is not an action fluent (in '{text}')", "unknown-action")
+        value: Value = True
+        if value_text.strip():
+            v = value_text.strip()
+            if p.range == "bool":
+                if v not in ("true", "false"):
+                    raise KBError(f"bad value '{v}' for bool action '{name}'", "bad-value")
+                value = v == "true"
+            elif p.range == "int":
+                value = int(v)
+            elif p.range == "real":
+                value = float(v)
+            else:
+                value = v
+        return name, args, value
+
+    def immediate_reward(self, actions: Iterable[str | tuple[str, Sequence[str], Value]]) -> float:
+        """RDDL's R(s, a): the reward of taking `actions` in the CURRENT
+        state (ROSPlan evaluated it on the state after the action). Actions
+        are strings as ROSPlan's clients send them ("goto_waypoint(kenny, a,
+        b)"; "noop" or nothing for no action) or (name, args, value) triples.
+        A reward that reads the next state is taken on one sampled next
+        state (seed 0), as the simulator computes it."""
+        named: dict[tuple[str, tuple[str, ...]], Value] = {}
+        for a in actions:
+            if isinstance(a, str):
+                if a.strip() in ("", "noop"):
+                    continue
+                name, args, value = self.parse_action(a)
+            else:
+                name, args, value = a[0], tuple(a[1]), a[2]
+            named[(name, args)] = value
+        with self._lock:
+            sim = self.simulator()
+            try:
+                arrays = sim.actions_from_names(named)
+                step = sim.step(self.to_state(), arrays, np.random.default_rng(0), check=False)
+            except SimulationError as err:
+                raise KBError(f"cannot evaluate the reward: {err}", "bad-action") from None
+            return float(step.reward[0])
+
+    # ---------------------------------------------------------------- misc
+
+    def __repr__(self) -> str:
+        return f"KnowledgeBase({self.model.name!r}, domain={self.model.domain_name!r})"
