@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from ippc.rddl import load_pair
-from ippc.rddl.prestep import split_step_source
+from ippc.rddl.sim.prestep import split_step_source
 from ippc.rddl.simulator import SimulationError, Simulator, State, Step
 
 from ..conftest import corpus_pairs

@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from ippc.rddl import load, load_model
+from ippc.rddl.sim.actions import _random_value
 from ippc.rddl.simulator import (
     _LARGE_BATCH,
     RANDOM_MAX_CONCURRENT,
@@ -306,10 +307,10 @@ def reference_random_actions(
             rank = taken[:, None] + np.cumsum(heads, axis=1)
             heads &= rank <= limit
             rows = np.nonzero(heads)
-            flat[rows[0], order[rows]] = sim._random_value(p, rng, len(rows[0]))
+            flat[rows[0], order[rows]] = _random_value(sim, p, rng, len(rows[0]))
             taken += heads.sum(axis=1)
             continue
-        values = sim._random_value(p, rng, batch * n).reshape(batch, n)
+        values = _random_value(sim, p, rng, batch * n).reshape(batch, n)
         for b in range(batch):
             for j in np.nonzero(heads[b])[0]:
                 if taken[b] >= limit:
