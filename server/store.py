@@ -20,6 +20,12 @@ both are NULL for a simulated step. Planning time is ``actions_received_at -
 turn_sent_at``. Rows start with status ``open``; ``end_round``/``end_session`` close them and
 ``interrupt_open`` closes whatever a shutting-down server leaves open.
 
+Schema version 3 adds a fourth table, ``jobs``, which rddl-batch fills (one row per
+planner x instance of an experiment, with its seeds, status and failure reason, pointing
+at the session that played it); the server never writes it. An older file is migrated
+in place when it is opened (version 2's columns and the table are added; nothing else changes), so files written
+by an older ippc stay readable and older readers of the three tables are unaffected.
+
 Several processes may open the same file (a busy timeout makes writers wait for each
 other). Each store tags the sessions it starts with an owner token, so that
 ``interrupt_open`` of one server does not close the live sessions of another.
@@ -43,6 +49,7 @@ from pathlib import Path
 from typing import Any
 
 __all__ = [
+    "JOB_STATUSES",
     "ROUND_STATUSES",
     "SCHEMA_VERSION",
     "SESSION_STATUSES",
@@ -53,9 +60,10 @@ __all__ = [
 
 log = logging.getLogger(__name__)
 
-#: Value of ``PRAGMA user_version`` for the schema below. Version 1 (no ``outcome`` and
-#: ``execution_seconds`` in ``steps``) is upgraded in place when opened.
-SCHEMA_VERSION = 2
+#: Value of ``PRAGMA user_version`` for the schema below (1: sessions, rounds, steps;
+#: 2: ``outcome`` and ``execution_seconds`` in ``steps``, for rddl-dispatch; 3: rddl-batch's
+#: ``jobs``). An older file is upgraded in place when opened.
+SCHEMA_VERSION = 3
 
 #: Final statuses of a session (``open`` while it runs).
 SESSION_STATUSES = frozenset({"finished", "timeout", "dropped", "interrupted"})
@@ -113,11 +121,38 @@ CREATE TABLE IF NOT EXISTS steps (
 );
 """
 
-# What turns a version-1 database into version 2 (columns added, rows kept).
-_UPGRADE_1_TO_2 = (
-    "ALTER TABLE steps ADD COLUMN outcome TEXT",
-    "ALTER TABLE steps ADD COLUMN execution_seconds REAL",
-)
+#: Job statuses of rddl-batch (``pending`` until a worker takes the job).
+JOB_STATUSES = frozenset({"pending", "running", "finished", "timeout", "failed", "interrupted"})
+
+# What each schema version adds to the one before (``_SCHEMA`` is version 2 itself).
+_MIGRATIONS: dict[int, str] = {
+    # version 1 -> 2: columns added, rows kept
+    2: """
+ALTER TABLE steps ADD COLUMN outcome TEXT;
+ALTER TABLE steps ADD COLUMN execution_seconds REAL
+""",
+    3: """
+CREATE TABLE IF NOT EXISTS jobs (
+    id           INTEGER PRIMARY KEY,
+    experiment   TEXT    NOT NULL,
+    job_key      TEXT    NOT NULL,        -- "planner@instance", unique in its experiment
+    planner      TEXT    NOT NULL,        -- the experiment's label for the planner
+    instance     TEXT    NOT NULL,
+    domain       TEXT    NOT NULL,
+    server_seed  INTEGER NOT NULL,
+    planner_seed INTEGER NOT NULL,
+    status       TEXT    NOT NULL DEFAULT 'pending' CHECK (status IN
+                 ('pending', 'running', 'finished', 'timeout', 'failed', 'interrupted')),
+    reason       TEXT,                    -- why it failed or timed out
+    session_id   INTEGER REFERENCES sessions(id),
+    attempts     INTEGER NOT NULL DEFAULT 0,
+    started_at   REAL,
+    ended_at     REAL,
+    UNIQUE (experiment, job_key)
+);
+CREATE INDEX IF NOT EXISTS jobs_by_status ON jobs(experiment, status);
+""",
+}
 
 Fluent = tuple[str, tuple[str, ...], object]
 
@@ -232,14 +267,23 @@ class ResultStore:
                     f"result store {self.path} has schema version {version}; this ippc "
                     f"knows only up to {SCHEMA_VERSION}"
                 )
-            if version == 1:
-                for statement in _UPGRADE_1_TO_2:
-                    cur.execute(statement)
-                cur.execute(f"PRAGMA user_version = {SCHEMA_VERSION}")
-            elif version < SCHEMA_VERSION:
-                for statement in _SCHEMA.split(";"):
-                    if statement.strip():
-                        cur.execute(statement)
+            if version < SCHEMA_VERSION:
+                # a new file gets _SCHEMA (version 2) and what came after; an older
+                # one each step from its version on
+                scripts = [_SCHEMA] if version < 1 else []
+                start = 3 if version < 1 else version + 1
+                scripts += [_MIGRATIONS[v] for v in range(start, SCHEMA_VERSION + 1)]
+                for script in scripts:
+                    for statement in script.split(";"):
+                        if statement.strip():
+                            cur.execute(statement)
+                if version >= 1:
+                    log.info(
+                        "result store %s: schema %d migrated to %d",
+                        self.path,
+                        version,
+                        SCHEMA_VERSION,
+                    )
                 cur.execute(f"PRAGMA user_version = {SCHEMA_VERSION}")
 
     @contextmanager

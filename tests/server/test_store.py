@@ -455,7 +455,7 @@ def test_a_version_1_database_is_upgraded_in_place(tmp_path: Path) -> None:
         )
         assert store.steps(rid)[1]["outcome"] == {"goal": True}
     conn = sqlite3.connect(path)
-    assert conn.execute("PRAGMA user_version").fetchone()[0] == SCHEMA_VERSION == 2
+    assert conn.execute("PRAGMA user_version").fetchone()[0] == SCHEMA_VERSION == 3
     conn.close()
 
 

@@ -1,0 +1,406 @@
+"""Jobs: one session of one planner on one instance, with its seeds, and how it is played.
+
+`run_job` is what a worker process (the local pool or a Dask worker) runs. It starts an
+in-process ``rddl-server`` on 127.0.0.1 for the job's one instance, with the job's server
+seed and the experiment's rounds and session budget, records the session in an in-memory
+`ResultStore`, plays it with the planner (a registered planner driven by
+``rddl-client``'s `run_session`; an `ExternalPlanner` such as PROST; or an external
+command) and returns everything recorded as a plain, picklable `JobResult`. The batch's
+parent process is the only writer of the result database (`batch.results`), so workers
+on other machines need no shared file system.
+
+Seeds are derived from the experiment's seed, the instance and the planner label only
+(`stable_seed`), so that a job played again (after a kill, on another machine) plays the
+same session: the server seed depends on the instance alone, so every planner meets the
+same random draws for the same actions (common random numbers).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import logging
+import os
+import signal
+import subprocess
+import time
+from dataclasses import dataclass, field
+from functools import partial
+from pathlib import Path
+from typing import Any
+
+import trio
+
+from ..server.store import encode_fluents
+from .experiment import Experiment, PlannerSpec, fill_command
+from .instances import ResolvedInstance
+
+__all__ = ["Job", "JobResult", "build_jobs", "run_job", "stable_seed"]
+
+log = logging.getLogger(__name__)
+
+#: Seconds a session may run past its budget before the job is stopped from outside
+#: (the server ends a session at its budget; this catches a client that hangs).
+HARD_LIMIT_GRACE = 60.0
+
+
+def stable_seed(*parts: object) -> int:
+    """A seed in [0, 2**31) from the parts' text: the same on every machine and run
+    (Python's ``hash`` is salted per process)."""
+    digest = hashlib.sha256("\x1f".join(str(p) for p in parts).encode()).digest()
+    return int.from_bytes(digest[:4], "big") & 0x7FFFFFFF
+
+
+@dataclass(frozen=True)
+class Job:
+    """One session to play; everything a worker needs (no open files, no models)."""
+
+    experiment: str
+    planner: PlannerSpec
+    instance: str
+    domain: str
+    files: tuple[str, ...]
+    paired: bool
+    rounds: int
+    timeout: float
+    server_seed: int
+    planner_seed: int
+    log_dir: str | None = None  # where an external command's output goes
+    server: tuple[str, int] | None = None  # play against this server instead of our own
+
+    @property
+    def key(self) -> str:
+        return f"{self.planner.label}@{self.instance}"
+
+
+@dataclass
+class JobResult:
+    """What a job produced: the session as the server recorded it, or why it failed."""
+
+    key: str
+    status: str  # finished | timeout | failed
+    reason: str | None
+    started_at: float
+    ended_at: float
+    session: dict[str, Any] | None = None
+    # each round's row with its steps under "steps" (rows as ResultStore returns them,
+    # state and actions as JSON text)
+    rounds: list[dict[str, Any]] = field(default_factory=list)
+
+
+def build_jobs(
+    experiment: Experiment,
+    instances: list[ResolvedInstance],
+    *,
+    log_dir: str | None = None,
+    server: tuple[str, int] | None = None,
+) -> list[Job]:
+    """Every planner x instance of the experiment, instance by instance (so that the
+    baselines of an instance finish early and partial scores mean something)."""
+    jobs = []
+    for inst in instances:
+        server_seed = stable_seed(experiment.seed, "server", inst.name)
+        for spec in experiment.planners:
+            jobs.append(
+                Job(
+                    experiment=experiment.name,
+                    planner=spec,
+                    instance=inst.name,
+                    domain=inst.domain,
+                    files=inst.files,
+                    paired=inst.paired,
+                    rounds=experiment.rounds,
+                    timeout=spec.timeout or experiment.timeout,
+                    server_seed=server_seed,
+                    planner_seed=stable_seed(experiment.seed, "planner", spec.label, inst.name),
+                    log_dir=log_dir,
+                    server=server,
+                )
+            )
+    return jobs
+
+
+# ---------------------------------------------------------------- in the worker
+
+
+def _registry(job: Job) -> Any:
+    from ..rddl import check_files, check_pair
+    from ..server.registry import Instance, Registry, build_task
+
+    results = check_pair(*job.files) if job.paired else check_files(*job.files)
+    for res in results:
+        if res.kind == "instance" and res.name == job.instance:
+            if res.model is None:
+                why = res.diagnostics[0].render() if res.diagnostics else "does not check"
+                raise ValueError(f"instance {job.instance} does not check: {why}")
+            return Registry(
+                {job.instance: Instance(job.instance, res.model, build_task(res.model))}
+            )
+    raise ValueError(f"instance {job.instance} is no longer in {', '.join(job.files)}")
+
+
+def run_job(job: Job) -> JobResult:
+    """Play the job's session (see the module doc); never raises for a failed session."""
+    started = time.time()
+    try:
+        if job.server is not None:
+            return _run_against(job, started)
+        return _run_own_server(job, started)
+    except (KeyboardInterrupt, SystemExit):
+        raise
+    except Exception as err:  # a bug or a broken instance must not stop the batch
+        log.debug("job %s failed", job.key, exc_info=True)
+        return JobResult(job.key, "failed", f"{type(err).__name__}: {err}", started, time.time())
+
+
+def _run_own_server(job: Job, started: float) -> JobResult:
+    from ..server.app import serve
+    from ..server.config import ServerConfig
+    from ..server.session import Services
+    from ..server.store import ResultStore
+
+    registry = _registry(job)
+    config = ServerConfig(
+        host="127.0.0.1",
+        port=0,
+        rounds=job.rounds,
+        seed=job.server_seed,
+        timeout=job.timeout,
+        individual_session=True,
+    )
+    store = ResultStore(":memory:", owner=f"batch:{job.key}")
+    services = Services(config, registry, store=store)
+    try:
+
+        async def play() -> str | None:
+            async with trio.open_nursery() as nursery:
+                port = await nursery.start(partial(serve, config, registry, services=services))
+                problem = await _play_client(job, "127.0.0.1", port)
+                nursery.cancel_scope.cancel()
+            return problem
+
+        problem = trio.run(play)
+        return _result_from_store(job, store, problem, started)
+    finally:
+        store.close()
+
+
+async def _play_client(job: Job, host: str, port: int) -> str | None:
+    """Play the session with the job's planner; a problem the client saw, or None."""
+    hard = job.timeout + HARD_LIMIT_GRACE
+    spec = job.planner
+    if spec.command is not None:
+        return await _play_command(job, host, port, hard)
+    from ..client.session import ClientConfig, ClientError, run_session
+    from ..planners.base import ExternalPlanner, PlannerError, find_planner, make_planner
+
+    options = dict(spec.options)
+    assert spec.planner is not None
+    cls = find_planner(spec.planner)
+    if "seed" in cls.options and "seed" not in options:
+        options["seed"] = str(job.planner_seed)
+    try:
+        agent = make_planner(spec.planner, options)
+    except PlannerError as err:
+        return str(err)
+    if isinstance(agent, ExternalPlanner):
+        log_path = _log_path(job)
+        res = await trio.to_thread.run_sync(
+            partial(
+                agent.run_session,
+                host=host,
+                port=port,
+                instance=job.instance,
+                client_name=None,
+                timeout=hard,
+                log_path=log_path,
+            )
+        )
+        return res.error
+    config = ClientConfig(
+        host=host,
+        port=port,
+        instance=job.instance,
+        client_name=spec.label,
+        seed=job.planner_seed,
+        timeout=hard,
+    )
+    try:
+        with trio.fail_after(hard):
+            await run_session(config, agent, spec.label)
+    except trio.TooSlowError:
+        return f"the session was still running {hard:g} s after it started; stopped"
+    except (ClientError, PlannerError) as err:
+        return str(err)
+    return None
+
+
+def _log_path(job: Job) -> Path | None:
+    if job.log_dir is None:
+        return None
+    folder = Path(job.log_dir)
+    folder.mkdir(parents=True, exist_ok=True)
+    safe = "".join(c if c.isalnum() or c in "._-@" else "_" for c in job.key)
+    return folder / f"{safe}.log"
+
+
+async def _play_command(job: Job, host: str, port: int, hard: float) -> str | None:
+    assert job.planner.command is not None
+    argv = fill_command(
+        job.planner.command,
+        {
+            "host": host,
+            "port": port,
+            "instance": job.instance,
+            "seed": job.planner_seed,
+            "rounds": job.rounds,
+            "timeout": f"{job.timeout:g}",
+            "name": job.planner.label,
+        },
+    )
+    log_path = _log_path(job)
+    out = open(log_path, "wb") if log_path is not None else subprocess.DEVNULL  # noqa: SIM115
+
+    async def stop(process: trio.Process) -> None:
+        # SIGINT first: rddl-client turns it into KeyboardInterrupt and stops what it
+        # launched (PROST's own process group); then the whole group gets SIGKILL.
+        for sig, wait in ((signal.SIGINT, 5.0), (signal.SIGKILL, 5.0)):
+            try:
+                os.killpg(process.pid, sig)
+            except (ProcessLookupError, PermissionError):
+                return
+            with trio.move_on_after(wait):
+                await process.wait()
+                return
+
+    try:
+        with trio.move_on_after(hard) as scope:
+            proc = await trio.run_process(
+                argv,
+                stdin=subprocess.DEVNULL,
+                stdout=out,
+                stderr=subprocess.STDOUT,
+                check=False,
+                start_new_session=True,
+                deliver_cancel=stop,
+            )
+    except OSError as err:
+        return f"cannot start {argv[0]}: {err}"
+    finally:
+        if log_path is not None:
+            out.close()  # type: ignore[union-attr]
+    where = f" (output: {log_path})" if log_path is not None else ""
+    if scope.cancelled_caught:
+        return f"the command was still running {hard:g} s after it started; stopped{where}"
+    if proc.returncode != 0:
+        return f"the command exited with status {proc.returncode}{where}"
+    return None
+
+
+def _result_from_store(job: Job, store: Any, problem: str | None, started: float) -> JobResult:
+    sessions = store.sessions()
+    ended = time.time()
+    if not sessions:
+        why = problem or "no session was played (the planner never asked for the instance)"
+        return JobResult(job.key, "failed", why, started, ended)
+    session = sessions[-1]
+    rounds = []
+    for rnd in store.rounds(session["id"]):
+        steps = store.steps(rnd["id"])
+        for step in steps:
+            step["state"] = encode_fluents(step["state"])
+            step["actions"] = encode_fluents(step["actions"])
+        rnd["steps"] = steps
+        rounds.append(rnd)
+    status = session["status"]
+    if status == "finished":
+        # the session ended well; a client that complained afterwards is only noted
+        return JobResult(job.key, "finished", problem, started, ended, session, rounds)
+    if status == "timeout":
+        reason = (
+            f"the session's budget of {job.timeout:g} s ran out after "
+            f"{session['rounds_used']} of {job.rounds} rounds"
+        )
+        return JobResult(job.key, "timeout", reason, started, ended, session, rounds)
+    why = session.get("reason") or status
+    if problem:
+        why = f"{why}; the client: {problem}"
+    return JobResult(job.key, "failed", why, started, ended, session, rounds)
+
+
+def _run_against(job: Job, started: float) -> JobResult:
+    """Play against an existing server (``--server``): only what the client sees is
+    recorded (round rewards and turns, no steps)."""
+    from ..client.session import ClientConfig, ClientError, run_session
+    from ..planners.base import ExternalPlanner, PlannerError, find_planner, make_planner
+
+    assert job.server is not None and job.planner.planner is not None
+    host, port = job.server
+    options = dict(job.planner.options)
+    if "seed" in find_planner(job.planner.planner).options and "seed" not in options:
+        options["seed"] = str(job.planner_seed)
+    agent = make_planner(job.planner.planner, options)
+    hard = job.timeout + HARD_LIMIT_GRACE
+    if isinstance(agent, ExternalPlanner):
+        res = agent.run_session(
+            host=host,
+            port=port,
+            instance=job.instance,
+            client_name=None,
+            timeout=hard,
+            log_path=_log_path(job),
+        )
+        rewards = [(r, None, None) for r in res.rounds]
+        error = res.error
+        total = res.total_reward
+    else:
+        config = ClientConfig(
+            host=host,
+            port=port,
+            instance=job.instance,
+            client_name=job.planner.label,
+            seed=job.planner_seed,
+            timeout=hard,
+        )
+        try:
+            out = trio.run(run_session, config, agent, job.planner.label)
+        except (ClientError, PlannerError) as err:
+            return JobResult(job.key, "failed", str(err), started, time.time())
+        rewards = [(r.reward, r.turns, r.seconds) for r in out.rounds if not r.training]
+        error, total = None, out.total_reward
+    ended = time.time()
+    session = {
+        "server_session_id": 0,
+        "instance": job.instance,
+        "client_name": job.planner.label,
+        "seed": -1,  # the server chose it
+        "num_rounds": job.rounds,
+        "time_allowed_ms": job.timeout * 1000.0,
+        "peer": f"{host}:{port}",
+        "no_header": False,
+        "started_at": started,
+        "ended_at": ended,
+        "status": "finished" if error is None else "dropped",
+        "total_reward": total,
+        "rounds_used": len(rewards),
+        "reason": error,
+        "owner": f"batch:{job.key}:remote",
+    }
+    rounds = []
+    t = started
+    for i, (reward, turns, seconds) in enumerate(rewards, 1):
+        t1 = t + (seconds or 0.0)
+        rounds.append(
+            {
+                "round_num": i,
+                "counted": True,
+                "started_at": t,
+                "ended_at": t1,
+                "status": "finished",
+                "reward": reward,
+                "turns_used": turns,
+                "steps": [],
+            }
+        )
+        t = t1
+    status = "finished" if error is None else "failed"
+    return JobResult(job.key, status, error, started, ended, session, rounds)

@@ -1,0 +1,227 @@
+"""Run an experiment: its jobs on this machine or on a Dask cluster, resumable.
+
+`run_batch` registers the experiment's jobs in the result database, skips those already
+done (finished, or timed out: their rounds count), hands the others to an executor and
+imports each result as it comes back. The executors:
+
+* serial (``jobs = 1``): in this process;
+* a local process pool (``concurrent.futures.ProcessPoolExecutor``, spawned workers);
+* a Dask distributed cluster (``cluster="tcp://HOST:PORT"``, or a ``distributed.Client``
+  a caller made, such as a test's ``LocalCluster``): each task plays its session with its
+  own in-process server inside the worker, exactly as the local pool does, and returns
+  the recorded session, so the results are the same wherever a job ran.
+
+Ctrl-C (KeyboardInterrupt) stops the batch: jobs not started are not started, jobs
+running are stopped (their workers are ended) and marked ``interrupted``, and every job
+that finished is already in the database. Running again resumes.
+"""
+
+from __future__ import annotations
+
+import logging
+import multiprocessing
+import os
+import signal
+import sys
+import time
+from collections.abc import Callable, Iterator
+from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from .experiment import Experiment, ExperimentError
+from .instances import resolve_instances
+from .jobs import Job, JobResult, build_jobs, run_job
+from .progress import Progress
+from .results import DONE, BatchStore
+
+__all__ = ["BatchSummary", "run_batch"]
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class BatchSummary:
+    """What a run did."""
+
+    total: int  # jobs in the experiment
+    skipped: int  # already done before this run
+    finished: int  # done in this run (finished or timed out)
+    failed: int
+    interrupted: bool
+    seconds: float
+
+
+def _worker_init() -> None:
+    # The parent owns Ctrl-C: a terminal's SIGINT reaches the whole process group, and
+    # a worker that died of it would only make noise. The parent ends workers itself.
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+def _serial(jobs: list[Job], started: Callable[[Job], None]) -> Iterator[JobResult]:
+    for job in jobs:
+        started(job)
+        yield run_job(job)
+
+
+def _pool(jobs: list[Job], n: int, started: Callable[[Job], None]) -> Iterator[JobResult]:
+    ctx = multiprocessing.get_context("spawn")
+    pool = ProcessPoolExecutor(max_workers=n, mp_context=ctx, initializer=_worker_init)
+    pending = list(jobs)
+    running: dict[Future[JobResult], Job] = {}
+    try:
+        while pending or running:
+            # hand out no more than the workers can play, so that "running" is true and a
+            # Ctrl-C leaves the rest unstarted
+            while pending and len(running) < n:
+                job = pending.pop(0)
+                running[pool.submit(run_job, job)] = job
+                started(job)
+            done, _ = wait(running, return_when=FIRST_COMPLETED)
+            for fut in done:
+                job = running.pop(fut)
+                try:
+                    yield fut.result()
+                except Exception as err:  # a worker that died (killed, out of memory)
+                    now = time.time()
+                    yield JobResult(
+                        job.key, "failed", f"the worker process failed: {err!r}", now, now
+                    )
+    finally:
+        if pending or running:
+            _stop_pool(pool)
+        else:
+            pool.shutdown(wait=True)
+
+
+def _stop_pool(pool: ProcessPoolExecutor) -> None:
+    processes = list(getattr(pool, "_processes", {}).values())
+    pool.shutdown(wait=False, cancel_futures=True)
+    for proc in processes:
+        if proc.is_alive():
+            proc.terminate()
+    for proc in processes:
+        proc.join(10)
+        if proc.is_alive():
+            proc.kill()
+            proc.join(5)
+
+
+def _dask(jobs: list[Job], cluster: Any, started: Callable[[Job], None]) -> Iterator[JobResult]:
+    try:
+        import distributed
+    except ImportError:
+        raise ExperimentError(
+            ["--cluster needs Dask's distributed package: pip install 'ippc[batch]'"]
+        ) from None
+    own = isinstance(cluster, str)
+    client = distributed.Client(cluster, timeout="30s") if own else cluster
+    futures = []
+    try:
+        by_key = {}
+        for job in jobs:
+            fut = client.submit(
+                run_job, job, pure=False, key=f"ippc-batch-{job.key}-{os.getpid()}-{time.time_ns()}"
+            )
+            by_key[fut.key] = job
+            futures.append(fut)
+            started(job)
+        for fut in distributed.as_completed(futures):
+            job = by_key[fut.key]
+            try:
+                yield fut.result()
+            except Exception as err:
+                now = time.time()
+                yield JobResult(job.key, "failed", f"the Dask task failed: {err!r}", now, now)
+    finally:
+        unfinished = [f for f in futures if not f.done()]
+        if unfinished:
+            client.cancel(unfinished)
+        if own:
+            client.close()
+
+
+def run_batch(
+    experiment: Experiment,
+    db: str | Path,
+    *,
+    jobs: int | None = None,
+    cluster: Any = None,
+    server: tuple[str, int] | None = None,
+    retry_failed: bool = False,
+    log_dir: str | Path | None = None,
+    progress: Progress | None = None,
+) -> BatchSummary:
+    """Play every job of `experiment` not yet done, storing results in `db`.
+
+    ``jobs`` sessions at once on this machine (default: the experiment's ``jobs``),
+    or on ``cluster`` (a scheduler address or a ``distributed.Client``). ``server``
+    plays against an existing server instead of one per job. Raises `ExperimentError`
+    for instances that do not resolve, before anything runs."""
+    t0 = time.monotonic()
+    instances = resolve_instances(experiment)
+    if server is not None:
+        commands = [p.label for p in experiment.planners if p.command is not None]
+        if commands:
+            raise ExperimentError(
+                [
+                    f"--server: planners given as commands ({', '.join(commands)}) need the batch's own server"
+                ]
+            )
+    all_jobs = build_jobs(
+        experiment, instances, log_dir=None if log_dir is None else str(log_dir), server=server
+    )
+    n = jobs or experiment.jobs
+    with BatchStore(db) as store:
+        conflicts = store.register(all_jobs)
+        if conflicts:
+            raise ExperimentError(
+                [
+                    f"{db}: experiment '{experiment.name}' is there with other seeds for "
+                    f"{len(conflicts)} job(s) ({', '.join(conflicts[:3])}...): use another --db "
+                    "or another experiment name"
+                ]
+            )
+        if store.reset_running(experiment.name):
+            log.info("jobs left running by an earlier batch are played again")
+        status = {row.job_key: row.status for row in store.jobs(experiment.name)}
+        again = DONE if retry_failed else (*DONE, "failed")
+        todo = [j for j in all_jobs if status.get(j.key) not in again]
+        skipped = len(all_jobs) - len(todo)
+        prog = progress or Progress(total=len(all_jobs), done=skipped, stream=sys.stderr)
+        prog.start(total=len(all_jobs), done=skipped)
+        finished = failed = 0
+        interrupted = False
+
+        def started(job: Job) -> None:
+            store.mark(experiment.name, [job.key], "running")
+            prog.started()
+
+        if cluster is not None:
+            results = _dask(todo, cluster, started)
+        elif n <= 1:
+            results = _serial(todo, started)
+        else:
+            results = _pool(todo, n, started)
+        try:
+            for result in results:
+                store.import_result(experiment.name, result)
+                if result.status in DONE:
+                    finished += 1
+                else:
+                    failed += 1
+                    log.warning("%s failed: %s", result.key, result.reason)
+                prog.ended(failed=result.status not in DONE)
+        except KeyboardInterrupt:
+            interrupted = True
+            close = getattr(results, "close", None)
+            if close is not None:
+                close()  # stops the workers (the generators' finally)
+            running = [r.job_key for r in store.jobs(experiment.name) if r.status == "running"]
+            store.mark(experiment.name, running, "interrupted", "stopped by Ctrl-C")
+        finally:
+            prog.close()
+    return BatchSummary(
+        len(all_jobs), skipped, finished, failed, interrupted, time.monotonic() - t0
+    )

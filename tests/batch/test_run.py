@@ -1,0 +1,205 @@
+"""End to end: run, kill half-way (SIGKILL and Ctrl-C), resume, and get the same scores
+as an uninterrupted run; the same experiment on a Dask LocalCluster; rddlsim's logs."""
+
+from __future__ import annotations
+
+import os
+import signal
+import sqlite3
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+from ippc.batch import BatchStore, load_experiment, read_rddlsim_log, run_batch, score
+
+from .conftest import REPO, outcome, write_small
+
+pytestmark = pytest.mark.alone  # worker processes and a kill timed on the database
+
+LOG = REPO / "tests" / "data" / "batch" / "rddlsim-logs-2323.log"
+
+
+def finished_jobs(db: Path) -> int:
+    if not db.exists():
+        return 0
+    try:
+        with sqlite3.connect(db, timeout=5) as conn:
+            return conn.execute("SELECT count(*) FROM jobs WHERE status = 'finished'").fetchone()[0]
+    except sqlite3.OperationalError:  # the schema is not there yet
+        return 0
+
+
+def start_batch(path: Path, db: Path) -> subprocess.Popen[bytes]:
+    return subprocess.Popen(
+        [sys.executable, "-m", "ippc.batch.cli", "run", str(path), "--db", str(db), "--jobs", "2"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        start_new_session=True,  # our own group: a stray worker can be cleaned up
+    )
+
+
+def wait_for(db: Path, proc: subprocess.Popen[bytes], n: int, seconds: float = 180.0) -> int:
+    deadline = time.monotonic() + seconds
+    while time.monotonic() < deadline:
+        done = finished_jobs(db)
+        if done >= n:
+            return done
+        assert proc.poll() is None, proc.communicate()
+        time.sleep(0.05)
+    raise AssertionError(f"fewer than {n} jobs finished in {seconds} s")
+
+
+def cleanup(proc: subprocess.Popen[bytes]) -> None:
+    try:
+        os.killpg(proc.pid, signal.SIGKILL)
+    except ProcessLookupError:
+        pass
+    proc.wait(10)
+
+
+def test_sigkill_half_way_then_resume_gives_the_same_scores(
+    tmp_path: Path, small_reference
+) -> None:
+    _, _, reference = small_reference
+    path = write_small(tmp_path)
+    db = tmp_path / "killed.sqlite"
+    proc = start_batch(path, db)
+    try:
+        wait_for(db, proc, 4)
+        os.kill(proc.pid, signal.SIGKILL)  # the parent only: its spawned workers see EOF
+        proc.wait(30)
+    finally:
+        cleanup(proc)
+    done_before = finished_jobs(db)
+    assert 4 <= done_before < 12, done_before
+    summary = run_batch(load_experiment(path), db, jobs=2)
+    assert summary.skipped == done_before  # finished sessions are not played again
+    assert summary.finished == 12 - done_before and summary.failed == 0
+    assert outcome(db) == reference
+    with BatchStore(db) as store:
+        # one session per job, and every job points at its own
+        jobs = store.jobs()
+        assert len({j.session_id for j in jobs}) == 12 and all(j.status == "finished" for j in jobs)
+        assert store.raw("SELECT count(*) FROM sessions")[0][0] == 12
+
+
+def test_ctrl_c_stops_cleanly_and_the_rest_resumes(tmp_path: Path, small_reference) -> None:
+    _, _, reference = small_reference
+    path = write_small(tmp_path)
+    db = tmp_path / "interrupted.sqlite"
+    proc = start_batch(path, db)
+    try:
+        wait_for(db, proc, 3)
+        proc.send_signal(signal.SIGINT)
+        out, err = proc.communicate(timeout=60)
+    finally:
+        cleanup(proc)
+    assert proc.returncode == 130, err.decode()
+    assert b"interrupted: run the same command again to resume" in err
+    with BatchStore(db) as store:
+        statuses = [j.status for j in store.jobs()]
+    assert "running" not in statuses  # the ones that were running are marked
+    assert statuses.count("finished") >= 3 and statuses.count("finished") < 12
+    assert set(statuses) <= {"finished", "interrupted", "pending"}
+    run_batch(load_experiment(path), db, jobs=1)
+    assert outcome(db) == reference
+
+
+def test_dask_local_cluster_gives_the_same_scores(tmp_path: Path, small_reference) -> None:
+    distributed = pytest.importorskip("distributed")
+    _, _, reference = small_reference
+    path = write_small(tmp_path)
+    db = tmp_path / "dask.sqlite"
+    with (
+        distributed.LocalCluster(
+            n_workers=1,
+            threads_per_worker=2,
+            processes=False,
+            protocol="tcp://",  # a real scheduler socket, on loopback only
+            host="127.0.0.1",
+            dashboard_address=None,
+        ) as cluster,
+        distributed.Client(cluster) as client,
+    ):
+        summary = run_batch(load_experiment(path), db, cluster=client)
+    assert (summary.finished, summary.failed) == (12, 0)
+    assert outcome(db) == reference
+
+
+def test_rddlsim_log_sits_in_one_table_with_our_results(small_reference) -> None:
+    _, db, _ = small_reference
+    logged = read_rddlsim_log(LOG)
+    # rddlsim's own round-ends, as its Java server wrote them (tests/data/README.md)
+    assert [(r.planner, r.instance, r.reward) for r in logged] == [
+        ("javaclient", "elevators_inst_mdp__1", 0.0),
+        ("javaclient", "elevators_inst_mdp__1", 0.0),
+        ("javaclient", "game_of_life_inst_mdp__1", 19.0),
+        ("javaclient", "game_of_life_inst_mdp__1", 18.0),
+        ("javaclient", "crossing_traffic_inst_mdp__1", -5.0),
+        ("javaclient", "crossing_traffic_inst_mdp__1", -5.0),
+    ]
+    assert logged[0].domain == "elevators_mdp"
+    with BatchStore(db) as store:
+        ours = store.round_records()
+    table = score(ours + logged, "ippc2011")
+    # the instances rddlsim alone played have no baseline: not scored
+    assert set(table.skipped) == {"elevators_inst_mdp__1", "crossing_traffic_inst_mdp__1"}
+    java = [s for s in table.instances if s.planner == "javaclient"]
+    assert {s.instance for s in java} == {
+        "print_fetch_inst_1",
+        "sysadmin_inst_mdp__1",
+        "game_of_life_inst_mdp__1",
+    }
+    gol = next(s for s in java if s.instance == "game_of_life_inst_mdp__1")
+    lo, hi = table.bounds["game_of_life_inst_mdp__1"]
+    assert gol.mean == 18.5 and gol.rounds == 2
+    assert gol.score == pytest.approx(0.0 if hi == lo else (max(18.5, lo) - lo) / (hi - lo))
+    assert hi >= 18.5
+
+
+def test_cli_score_json_and_report(tmp_path: Path, small_reference) -> None:
+    import json
+
+    _, db, _ = small_reference
+    out = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "ippc.batch.cli",
+            "score",
+            "--db",
+            str(db),
+            "--json",
+            "--rules",
+            "ippc2018",
+            "--rddlsim-log",
+            str(LOG),
+        ],
+        capture_output=True,
+        check=True,
+    )
+    data = json.loads(out.stdout)
+    assert data["rules"] == "ippc2018"
+    assert {p["planner"] for p in data["planners"]} == {
+        "noop",
+        "random",
+        "mcts",
+        "mcts_deep",
+        "javaclient",
+    }
+    report = tmp_path / "report"
+    subprocess.run(
+        [sys.executable, "-m", "ippc.batch.cli", "report", "--db", str(db), "--out", str(report)],
+        capture_output=True,
+        check=True,
+    )
+    text = (report / "report.md").read_text()
+    assert "| mcts_deep |" in text and "## Per domain" in text
+    for stem in ("score_per_instance", "reward_per_round", "time_per_turn"):
+        for ext in ("png", "svg", "csv", "json"):
+            assert (report / f"{stem}.{ext}").stat().st_size > 0
+    assert (report / "score_per_instance.png").read_bytes()[:4] == b"\x89PNG"
+    rows = (report / "reward_per_round.csv").read_text().splitlines()
+    assert rows[0] == "instance,planner,round,running_mean,ci95" and len(rows) == 1 + 12 * 2
