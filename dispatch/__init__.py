@@ -1,0 +1,1 @@
+"""ippc.dispatch: the robot side (sensing, action handlers, the online dispatcher)."""

@@ -1,0 +1,215 @@
+"""Action handlers: what executes one grounded action on the robot.
+
+A handler is an async callable that takes a `Dispatch` (the grounded
+action, its parameters by name, the turn, the other actions of the turn)
+and reports how it went: a `Result`, or just a `Status`, or True/False
+(succeeded/failed). ROSPlan's action interfaces report the same three
+outcomes (succeeded, failed, precondition-false).
+
+`Handlers` keeps the handlers by action name (one for "noop" is called on
+turns without actions, one for "*" for every action without its own) and
+runs one dispatch with a timeout: a handler that raises, answers nonsense
+or hangs is reported as failed with a message saying which; nothing of it
+reaches the dispatcher. What a success changes in the knowledge base is the
+dispatcher's business (the deterministic effects on fluents that are not
+sensed); a handler may also write to the knowledge base itself.
+"""
+
+from __future__ import annotations
+
+import enum
+import logging
+import math
+from collections.abc import Awaitable, Callable, Iterator, Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+import trio
+
+from ..rddl.model import Model, Value
+from .clock import Clock, WallClock
+
+__all__ = [
+    "ActionHandler",
+    "Dispatch",
+    "GroundAction",
+    "Handlers",
+    "Result",
+    "Status",
+    "parameter_keys",
+]
+
+log = logging.getLogger(__name__)
+
+
+class Status(enum.StrEnum):
+    """How a dispatched action ended."""
+
+    SUCCEEDED = "succeeded"
+    FAILED = "failed"
+    PRECONDITION_FALSE = "precondition-false"
+
+
+@dataclass(frozen=True)
+class GroundAction:
+    """One action fluent grounding with the value sent (True for PROST)."""
+
+    name: str
+    args: tuple[str, ...] = ()
+    value: Value = True
+
+    def __str__(self) -> str:
+        text = f"{self.name}({','.join(self.args)})"
+        return text if self.value is True else f"{text}={self.value}"
+
+
+@dataclass(frozen=True)
+class Dispatch:
+    """What a handler is asked to do."""
+
+    id: int  # increasing over the dispatcher's life
+    turn: int  # the turn (counted over the session) it belongs to
+    action: GroundAction
+    params: Mapping[str, str]  # parameter key (ROSPlan's names: r, w, w1) -> object
+    started: float  # on the dispatcher's clock
+    timeout: float | None  # seconds the handler has
+    concurrent: tuple[GroundAction, ...] = ()  # every action dispatched this turn (this one too)
+
+    @property
+    def name(self) -> str:
+        return self.action.name
+
+    @property
+    def args(self) -> tuple[str, ...]:
+        return self.action.args
+
+
+@dataclass(frozen=True)
+class Result:
+    """A handler's report. `cost` is whatever the handler measures for the
+    action (metres driven, seconds waited); `duration` the seconds it took
+    (filled in from the clock when the handler leaves it out)."""
+
+    status: Status
+    message: str = ""
+    cost: float | None = None
+    duration: float | None = None
+    data: Mapping[str, Any] = field(default_factory=dict)
+
+    @property
+    def succeeded(self) -> bool:
+        return self.status is Status.SUCCEEDED
+
+
+ActionHandler = Callable[[Dispatch], Awaitable[Any]]
+
+
+def parameter_keys(model: Model, action: str) -> tuple[str, ...]:
+    """The keys ROSPlan's knowledge base gives an action's parameters: the
+    type's first letter, with a counter from the second use on
+    (goto_waypoint(robot, waypoint, waypoint) -> r, w, w1)."""
+    p = model.pvariables[action]
+    seen: dict[str, int] = {}
+    keys: list[str] = []
+    for type_name in p.params:
+        letter = type_name[:1].lower() or "p"
+        n = seen.get(letter, 0)
+        keys.append(letter if n == 0 else f"{letter}{n}")
+        seen[letter] = n + 1
+    return tuple(keys)
+
+
+def as_result(answer: Any, where: str) -> Result:
+    """A handler's answer as a `Result` (refusing what is none)."""
+    if isinstance(answer, Result):
+        return answer
+    if isinstance(answer, Status):
+        return Result(answer)
+    if isinstance(answer, bool):
+        return Result(Status.SUCCEEDED if answer else Status.FAILED)
+    if isinstance(answer, str):
+        try:
+            return Result(Status(answer))
+        except ValueError:
+            pass
+    return Result(
+        Status.FAILED,
+        f"{where} answered {answer!r}, not succeeded, failed or precondition-false",
+    )
+
+
+class Handlers:
+    """Action handlers by action name, and running one dispatch."""
+
+    NOOP = "noop"
+    ANY = "*"
+
+    def __init__(self, *, clock: Clock | None = None, timeout: float | None = 60.0):
+        self.clock = clock or WallClock()
+        self.timeout = timeout
+        self._handlers: dict[str, ActionHandler] = {}
+        self._warned: set[str] = set()
+
+    def register(self, action: str, handler: ActionHandler) -> Callable[[], None]:
+        """Handle `action` (an action fluent's name, "noop" or "*") with
+        `handler`, replacing any other; returns the function that removes it."""
+        self._handlers[action] = handler
+
+        def unregister() -> None:
+            if self._handlers.get(action) is handler:
+                del self._handlers[action]
+
+        return unregister
+
+    def handler(self, action: str) -> ActionHandler | None:
+        return self._handlers.get(action) or (
+            None if action == self.NOOP else self._handlers.get(self.ANY)
+        )
+
+    def names(self) -> list[str]:
+        return sorted(self._handlers)
+
+    def __contains__(self, action: str) -> bool:
+        return self.handler(action) is not None
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(sorted(self._handlers))
+
+    async def run(self, dispatch: Dispatch) -> Result:
+        """Run the handler of `dispatch` within its timeout (wall-clock
+        seconds: a hung handler is a real hang); every way it can go wrong
+        becomes a failed `Result` that says what happened."""
+        handler = self.handler(dispatch.name)
+        where = f"the handler of {dispatch.action}"
+        if handler is None:
+            if dispatch.name not in self._warned:
+                self._warned.add(dispatch.name)
+                log.warning("no handler for action %s: it fails", dispatch.name)
+            return Result(Status.FAILED, f"no handler for action {dispatch.name!r}", duration=0.0)
+        timeout = dispatch.timeout
+        try:
+            with trio.move_on_after(math.inf if timeout is None else timeout) as scope:
+                answer = await handler(dispatch)
+        except Exception as err:  # noqa: BLE001 - a handler's bug fails its action only
+            log.warning("%s raised %s: %s", where, type(err).__name__, err)
+            return self._timed(
+                Result(Status.FAILED, f"{where} raised {type(err).__name__}: {err}"), dispatch
+            )
+        if scope.cancelled_caught:
+            log.warning("%s did not answer within %g s", where, timeout)
+            return self._timed(
+                Result(Status.FAILED, f"{where} did not answer within {timeout:g} s (timeout)"),
+                dispatch,
+            )
+        return self._timed(as_result(answer, where), dispatch)
+
+    def _timed(self, result: Result, dispatch: Dispatch) -> Result:
+        if result.duration is not None:
+            return result
+        return Result(
+            result.status,
+            result.message,
+            result.cost,
+            max(0.0, self.clock.now() - dispatch.started),
+            result.data,
+        )
