@@ -122,6 +122,8 @@ class SensingConfig:
             where = f"{source}:{mark.line + 1}:{mark.column + 1}" if mark else source
             problem = getattr(err, "problem", None) or str(err)
             raise SensingConfigError([f"{where}: not valid YAML: {problem}"]) from None
+        if node is None:
+            raise SensingConfigError([f"{source}: the sensing config is empty"])
         return _Loader(source, model).config(_Node.of(node, source))
 
     @classmethod

@@ -49,6 +49,7 @@ import numpy as np
 import trio
 
 from ..kb import KnowledgeBase, Update
+from ..planners.determinise import has_draws
 from ..protocol import Actions, ObservedFluentsWriter
 from ..rddl import ast as A
 from ..rddl.model import DERIVED, INTERM, STATE, Model, PVariable, Value
@@ -66,42 +67,6 @@ log = logging.getLogger(__name__)
 
 SOURCE = "dispatcher"
 
-# Distributions that draw nothing.
-_DETERMINISTIC = frozenset({"KronDelta", "DiracDelta"})
-
-
-def _draws(e: Any) -> bool:
-    """Whether expression `e` itself samples (not counting what it reads)."""
-    if isinstance(e, A.Distribution):
-        return e.name not in _DETERMINISTIC or any(_draws(a) for a in e.args)
-    if isinstance(e, A.Discrete | A.DiscreteOver | A.VectorDistribution):
-        return True
-    return any(_draws(c) for c in _children(e))
-
-
-def _children(e: Any) -> list[Any]:
-    out: list[Any] = []
-    for name in getattr(e, "__slots__", ()):
-        if name == "loc":
-            continue
-        v = getattr(e, name, None)
-        if isinstance(v, tuple):
-            out.extend(x for x in v if _is_expr(x))
-        elif _is_expr(v):
-            out.append(v)
-    return out
-
-
-def _is_expr(x: Any) -> bool:
-    return x is not None and type(x).__module__ == A.__name__ and not isinstance(x, A.Loc)
-
-
-def _reads(e: Any, into: set[tuple[str, bool]]) -> None:
-    if isinstance(e, A.PVar):
-        into.add((e.name, e.primed))
-    for c in _children(e):
-        _reads(c, into)
-
 
 def draw_free_fluents(model: Model) -> frozenset[str]:
     """The state fluents whose next value the model decides from the state
@@ -118,11 +83,10 @@ def draw_free_fluents(model: Model) -> frozenset[str]:
             return True
         if name in stack:  # a cycle the checker let through: be careful
             return False
-        result = not _draws(cpf.expr)
+        result = not has_draws(cpf.expr)
         if result:
-            reads: set[tuple[str, bool]] = set()
-            _reads(cpf.expr, reads)
-            for other, primed in reads:
+            reads = {(n.name, n.primed) for n in A.walk(cpf.expr) if isinstance(n, A.PVar)}
+            for other, primed in sorted(reads):
                 p = model.pvariables.get(other)
                 if p is None:
                     continue
@@ -330,7 +294,7 @@ class DispatchEpisode(Episode):
         self.d = dispatcher
         self.rng = np.random.default_rng(seed)
         self.round = 0
-        self.turn_num = 0  # over the session
+        self.turn_num = 0
         self.snapshot: State | None = None
         self._sent_at = 0.0
         self._last_failed = False
@@ -352,16 +316,16 @@ class DispatchEpisode(Episode):
         stats.planning_seconds += time.perf_counter() - self._sent_at
         decoded = decode_actions(d.codec, actions)  # unreadable: the session is dropped
         state = self.snapshot if self.snapshot is not None else d.kb.to_state()
-        self.turn_num += 1
         stats.turns += 1
+        self.turn_num = stats.turns  # counted over the dispatcher's life: unique
         if self._last_failed:
             stats.replans += 1
         wanted = [GroundAction(n, tuple(a), v) for n, a, v in d.codec.actions(decoded.arrays)]
         extra = [f"{i}" for i in decoded.ignored]
         if d.stop_at_goal and d.kb.goal_holds():
             stats.goal_reached = True
-            record = {"round": self.round, "turn": self.turn_num, "actions": [], "goal": True}
-            return Outcome(0.0, end="terminal", stop=True, record=record, execution_seconds=0.0)
+            done = {"round": self.round, "turn": self.turn_num, "actions": [], "goal": True}
+            return Outcome(0.0, end="terminal", stop=True, record=done, execution_seconds=0.0)
         started = d.clock.now()
         # preconditions on the state sent: alone, then together
         refused: dict[GroundAction, str] = {}

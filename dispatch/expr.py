@@ -204,12 +204,12 @@ class _Compiler:
             a = self.compile(node.operand)
             return lambda env: ufn(a(env))
         if isinstance(node, ast.BoolOp):
-            parts = [self.compile(v) for v in node.values]
+            operands = [self.compile(v) for v in node.values]
             if isinstance(node.op, ast.And):
 
                 def all_of(env: Env) -> Any:
                     value: Any = True
-                    for p in parts:
+                    for p in operands:
                         value = p(env)
                         if not value:
                             return value
@@ -219,7 +219,7 @@ class _Compiler:
 
             def any_of(env: Env) -> Any:
                 value: Any = False
-                for p in parts:
+                for p in operands:
                     value = p(env)
                     if value:
                         return value

@@ -1,0 +1,282 @@
+"""`rddl-dispatch`: the online dispatcher, an IPPC server whose environment is
+a robot's knowledge base (or, with --simulate, a simulated world)."""
+
+from __future__ import annotations
+
+import json
+import logging
+import sys
+from pathlib import Path
+from typing import Any
+
+import click
+import trio
+
+from ..kb import KBError, KnowledgeBase
+from ..planners.base import PlannerError, find_planner
+from ..rddl import RDDLError
+from .config import SensingConfig, SensingConfigError
+from .run import (
+    DEFAULT_ROUNDS,
+    PlannerSpec,
+    RobotFileError,
+    RunReport,
+    build_robot,
+    dispatch_session,
+    executed_plan,
+    server_config,
+)
+from .run import simulate as simulate_run
+
+
+def _options(pairs: tuple[str, ...]) -> dict[str, str]:
+    out: dict[str, str] = {}
+    for pair in pairs:
+        key, sep, value = pair.partition("=")
+        if not sep or not key:
+            raise click.BadParameter(f"{pair!r} is not KEY=VALUE", param_hint="--planner-option")
+        out[key.strip()] = value
+    return out
+
+
+def print_report(report: RunReport) -> None:
+    """The executed plan and the run's figures, as rddl-dispatch prints them."""
+    click.echo(f"{report.instance}  planner {report.planner}")
+    click.echo(f"{'turn':>4}  {'action':<40} outcome")
+    for line in report.plan_lines():
+        click.echo(line)
+    goal = "goal reached" if report.goal_reached else "goal not reached"
+    click.echo(
+        f"{goal}: {report.turns} turns in {report.rounds} round(s), reward {report.reward:g}, "
+        f"{report.failed_actions} failed action(s), planning {report.planning_seconds:.3f} s, "
+        f"execution {report.execution_seconds:.1f} s"
+    )
+    if report.planner_error:
+        click.echo(f"planner: {report.planner_error}", err=True)
+
+
+@click.command(context_settings={"help_option_names": ["-h", "--help"]})
+@click.argument("domain", required=False, type=click.Path(exists=True, path_type=Path))
+@click.argument("instance", required=False, type=click.Path(exists=True, path_type=Path))
+@click.option(
+    "--sensing",
+    "sensing_path",
+    type=click.Path(exists=True, dir_okay=False, path_type=Path),
+    help="Sensing config (YAML): the sensed fluents, their streams and expressions.",
+)
+@click.option(
+    "--robot",
+    "robot_file",
+    type=click.Path(exists=True, dir_okay=False, path_type=Path),
+    help="Python file whose setup(robot) registers action handlers and sensor sources.",
+)
+@click.option("--simulate", is_flag=True, help="Run the whole loop in the simulated world.")
+@click.option("--seed", default=0, show_default=True, help="Seed of the simulated world.")
+@click.option("--host", default="127.0.0.1", show_default=True)
+@click.option("--port", default=2323, show_default=True, help="TCP port; 0 picks a free one.")
+@click.option(
+    "--planner",
+    default=None,
+    help="Start this built-in planner against the dispatcher (rddl-client's code).",
+)
+@click.option(
+    "--planner-option", "planner_options", multiple=True, metavar="KEY=VALUE", help="Repeatable."
+)
+@click.option(
+    "--prost",
+    "prost_bin",
+    type=click.Path(path_type=Path),
+    default=None,
+    help="Start PROST (its search program or folder) against the dispatcher.",
+)
+@click.option(
+    "--no-header", is_flag=True, help="The built-in planner asks for no-header framing (as PROST)."
+)
+@click.option(
+    "--rounds",
+    default=DEFAULT_ROUNDS,
+    show_default=True,
+    help="Rounds offered: at the horizon without the goal, the next round goes on.",
+)
+@click.option(
+    "--timeout", default=0.0, show_default=True, help="Session budget in seconds; 0 = none."
+)
+@click.option(
+    "--action-timeout", default=60.0, show_default=True, help="Seconds a handler has per action."
+)
+@click.option("--no-stop-at-goal", is_flag=True, help="Play every round to its horizon.")
+@click.option(
+    "--db",
+    type=click.Path(dir_okay=False, path_type=Path),
+    help="SQLite result store (every turn, with outcomes).",
+)
+@click.option("--json-out", type=click.Path(dir_okay=False, path_type=Path))
+@click.option(
+    "--plan-of",
+    "plan_of",
+    type=click.Path(exists=True, dir_okay=False, path_type=Path),
+    help="Print the executed plan of a session recorded in this result store, and exit.",
+)
+@click.option("--session", "session_id", type=int, default=None, help="With --plan-of: which.")
+@click.option("-q", "--quiet", is_flag=True)
+def main(
+    domain: Path | None,
+    instance: Path | None,
+    sensing_path: Path | None,
+    robot_file: Path | None,
+    simulate: bool,
+    seed: int,
+    host: str,
+    port: int,
+    planner: str | None,
+    planner_options: tuple[str, ...],
+    prost_bin: Path | None,
+    no_header: bool,
+    rounds: int,
+    timeout: float,
+    action_timeout: float,
+    no_stop_at_goal: bool,
+    db: Path | None,
+    json_out: Path | None,
+    plan_of: Path | None,
+    session_id: int | None,
+    quiet: bool,
+) -> None:
+    """Serve the knowledge base of DOMAIN and INSTANCE to an IPPC planner and
+    execute the actions it sends (see docs/robot.md)."""
+    logging.basicConfig(
+        level=logging.WARNING if quiet else logging.INFO,
+        format="%(levelname)s %(name)s: %(message)s",
+        stream=sys.stderr,
+    )
+    if plan_of is not None:
+        _print_plan(plan_of, session_id)
+        return
+    if domain is None or instance is None:
+        raise click.UsageError("DOMAIN and INSTANCE are needed (or --plan-of DB)")
+    if planner is not None and prost_bin is not None:
+        raise click.BadParameter("give --planner or --prost, not both", param_hint="--prost")
+    if rounds < 1:
+        raise click.BadParameter("must be at least 1", param_hint="--rounds")
+    spec: PlannerSpec | None = None
+    if planner is not None or prost_bin is not None:
+        if planner is not None:
+            try:
+                find_planner(planner)
+            except PlannerError as err:
+                raise click.ClickException(str(err)) from None
+        spec = PlannerSpec(
+            name=planner or "prost",
+            options=_options(planner_options),
+            prost=None if prost_bin is None else str(prost_bin),
+            no_header=no_header,
+            seed=seed,
+        )
+    if simulate:
+        if sensing_path is not None or robot_file is not None:
+            raise click.BadParameter(
+                "the simulated world senses and executes itself", param_hint="--simulate"
+            )
+        try:
+            report = simulate_run(
+                domain,
+                instance,
+                seed=seed,
+                planner=spec or PlannerSpec("noop"),
+                rounds=rounds,
+                db=db,
+                action_timeout=action_timeout,
+                stop_at_goal=not no_stop_at_goal,
+            )
+        except (RDDLError, KBError) as err:
+            raise click.ClickException(str(err)) from None
+    else:
+        report = _robot(
+            domain,
+            instance,
+            sensing_path,
+            robot_file,
+            spec,
+            host=host,
+            port=port,
+            rounds=rounds,
+            timeout=timeout,
+            action_timeout=action_timeout,
+            stop_at_goal=not no_stop_at_goal,
+            db=db,
+        )
+    print_report(report)
+    if json_out is not None:
+        json_out.write_text(json.dumps(report.as_dict(), indent=2) + "\n")
+
+
+def _robot(
+    domain: Path,
+    instance: Path,
+    sensing_path: Path | None,
+    robot_file: Path | None,
+    spec: PlannerSpec | None,
+    **opts: Any,
+) -> RunReport:
+    try:
+        kb = KnowledgeBase.from_files(domain, instance)
+        config = SensingConfig.load(sensing_path, kb.model) if sensing_path is not None else None
+        robot, dispatcher = build_robot(
+            kb,
+            config,
+            robot_file=robot_file,
+            action_timeout=opts["action_timeout"],
+            stop_at_goal=opts["stop_at_goal"],
+        )
+    except (RDDLError, KBError, SensingConfigError, RobotFileError) as err:
+        raise click.ClickException(str(err)) from None
+    if not robot.handlers.names():
+        logging.getLogger(__name__).warning(
+            "no action handler registered (give --robot FILE): every action fails"
+        )
+    config_ = server_config(
+        host=opts["host"],
+        port=opts["port"],
+        rounds=opts["rounds"],
+        timeout=opts["timeout"],
+        db=opts["db"],
+    )
+
+    def listening(bound: int) -> None:
+        click.echo(f"listening on {opts['host']}:{bound}")
+        sys.stdout.flush()
+
+    try:
+        return trio.run(
+            lambda: dispatch_session(
+                dispatcher,
+                spec,
+                config_,
+                sensing_task=True,
+                on_listening=listening,
+                robot=robot,
+            )
+        )
+    except BaseException as exc:  # trio hands some errors over in exception groups
+        leaf = exc
+        while isinstance(leaf, BaseExceptionGroup) and len(leaf.exceptions) == 1:
+            leaf = leaf.exceptions[0]
+        if isinstance(leaf, OSError):
+            raise click.ClickException(
+                f"cannot listen on {opts['host']}:{opts['port']}: {leaf}"
+            ) from None
+        if isinstance(leaf, KeyboardInterrupt):
+            raise click.Abort() from None
+        raise
+
+
+def _print_plan(db: Path, session: int | None) -> None:
+    try:
+        plan = executed_plan(db, session)
+    except KeyError as err:
+        raise click.ClickException(str(err.args[0])) from None
+    for e in plan:
+        line = f"{e['round']:>3} {e['turn']:>4}  {e['action']:<40} {e['outcome']}"
+        if e.get("message"):
+            line += f"  ({e['message']})"
+        click.echo(line)

@@ -1,0 +1,468 @@
+"""Running the dispatcher: serve it, start a planner against it, report.
+
+`serve_dispatcher` serves a `Dispatcher` with rddl-server's listener and
+session code (one session at a time; the result store, transcripts and the
+session budget as rddl-server's options have them). `run_planner` plays a
+planner against it once it listens: a built-in planner through
+rddl-client's code (`ippc.client.run_session`, in a thread of its own so
+that planning never stalls the dispatcher, its handlers or its sensors) or
+PROST through its launcher (`ippc.planners.prost`). `dispatch_session`
+does both and returns a `RunReport`; `simulate` does it all in the
+simulated world (`ippc.dispatch.world`), callable from Python as from
+`rddl-dispatch --simulate`.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Awaitable, Callable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import trio
+
+from ..kb import KnowledgeBase
+from ..planners.base import ExternalPlanner, Planner, PlannerError, make_planner
+from ..server.app import serve
+from ..server.config import ServerConfig
+from ..server.session import Services
+from .actions import Handlers
+from .clock import Clock, WallClock
+from .config import SensingConfig
+from .dispatcher import Dispatcher
+from .sensing import Sensing
+from .world import PerAction, SimulatedWorld
+
+__all__ = ["PlannerSpec", "RunReport", "dispatch_session", "serve_dispatcher", "simulate"]
+
+log = logging.getLogger(__name__)
+
+#: Rounds a dispatcher session offers by default: when a round reaches the
+#: horizon without the goal, the next one goes on from where the robot is.
+DEFAULT_ROUNDS = 5
+
+
+@dataclass(frozen=True)
+class PlannerSpec:
+    """Which planner to start: a built-in by name (with its options) or PROST."""
+
+    name: str = "noop"
+    options: Mapping[str, str] = field(default_factory=dict)
+    prost: str | None = None  # PROST's search program (or its folder): use PROST
+    no_header: bool = False  # a built-in planner asks for no-header framing (as PROST does)
+    seed: int | None = None
+
+    @property
+    def label(self) -> str:
+        return "prost" if self.prost is not None else self.name
+
+
+@dataclass
+class RunReport:
+    """One dispatcher session, as `rddl-dispatch` reports it."""
+
+    instance: str
+    planner: str
+    goal_reached: bool
+    turns: int
+    rounds: int
+    reward: float  # the world's reward (simulated) or the dispatcher's (undiscounted sums)
+    executed: list[dict[str, Any]]
+    failed_actions: int
+    planning_seconds: float
+    execution_seconds: float  # on the dispatcher's clock (simulated seconds in the world)
+    replans: int
+    cost: float | None = None
+    session_status: str | None = None
+    seed: int | None = None
+    wall_seconds: float = 0.0
+    planner_error: str | None = None
+    dispatcher_reward: float = 0.0
+
+    @property
+    def success(self) -> bool:
+        return self.goal_reached
+
+    def as_dict(self) -> dict[str, Any]:
+        return {
+            "instance": self.instance,
+            "planner": self.planner,
+            "seed": self.seed,
+            "goal_reached": self.goal_reached,
+            "turns": self.turns,
+            "rounds": self.rounds,
+            "reward": self.reward,
+            "dispatcher_reward": self.dispatcher_reward,
+            "executed": self.executed,
+            "failed_actions": self.failed_actions,
+            "replans": self.replans,
+            "planning_seconds": self.planning_seconds,
+            "execution_seconds": self.execution_seconds,
+            "cost": self.cost,
+            "session_status": self.session_status,
+            "wall_seconds": self.wall_seconds,
+            "planner_error": self.planner_error,
+        }
+
+    def plan_lines(self) -> list[str]:
+        """The executed plan, one line per action."""
+        return [
+            f"{e['turn']:>4}  {e['action']:<40} {e['outcome']}"
+            + (f"  ({e['message']})" if e.get("message") else "")
+            for e in self.executed
+        ]
+
+
+def server_config(
+    *,
+    host: str = "127.0.0.1",
+    port: int = 0,
+    rounds: int = DEFAULT_ROUNDS,
+    timeout: float = 0.0,
+    db: Path | None = None,
+    transcripts: Path | None = None,
+    individual_session: bool = True,
+) -> ServerConfig:
+    """rddl-server's settings for a dispatcher (no budget enforced by default)."""
+    return ServerConfig(
+        host=host,
+        port=port,
+        rounds=rounds,
+        timeout=timeout,
+        individual_session=individual_session,
+        db=db,
+        transcripts=transcripts,
+    )
+
+
+async def serve_dispatcher(
+    dispatcher: Dispatcher,
+    config: ServerConfig,
+    *,
+    task_status: trio.TaskStatus[int] = trio.TASK_STATUS_IGNORED,
+) -> Services:
+    """Serve `dispatcher` until cancelled (or, with `individual_session`,
+    until its one session ends); reports the bound port once listening."""
+    return await serve(config, dispatcher, task_status=task_status)
+
+
+async def run_planner(
+    spec: PlannerSpec, host: str, port: int, instance: str, timeout: float | None = None
+) -> str | None:
+    """Play one session of `spec`'s planner against host:port; the error it
+    ended with, or None."""
+    if spec.prost is not None:
+        options = dict(spec.options)
+        options["binary"] = spec.prost
+        planner: Planner | ExternalPlanner = make_planner("prost", options)
+    else:
+        planner = make_planner(spec.name, dict(spec.options))
+    if isinstance(planner, ExternalPlanner):
+        external = planner
+
+        def play_external() -> str | None:
+            result = external.run_session(
+                host=host,
+                port=port,
+                instance=instance,
+                client_name=None,
+                timeout=timeout,
+                log_path=None,
+            )
+            return result.error
+
+        try:
+            return await trio.to_thread.run_sync(play_external, abandon_on_cancel=False)
+        finally:
+            external.cancel()
+    from ..client.session import ClientConfig, ClientError, run_session
+
+    config = ClientConfig(
+        host=host,
+        port=port,
+        instance=instance,
+        client_name=spec.name,
+        no_header=spec.no_header,
+        seed=spec.seed,
+        timeout=timeout if timeout is not None else 600.0,
+    )
+
+    def play_builtin() -> str | None:
+        try:
+            trio.run(run_session, config, planner, spec.name)
+        except ClientError as err:
+            return str(err)
+        return None
+
+    return await trio.to_thread.run_sync(play_builtin, abandon_on_cancel=False)
+
+
+async def dispatch_session(
+    dispatcher: Dispatcher,
+    spec: PlannerSpec | None,
+    config: ServerConfig,
+    *,
+    sensing_task: bool = False,
+    planner_timeout: float | None = None,
+    on_listening: Callable[[int], None] | None = None,
+    robot: Robot | None = None,
+) -> RunReport:
+    """Serve `dispatcher`, start the planner once it listens (none: wait
+    for one to connect), play one session, and report. `sensing_task` runs
+    the dispatcher's sensing batches at their rate meanwhile (a robot; the
+    simulated world needs none); `robot`'s tasks (sensor sources) run
+    meanwhile too."""
+    started = time.perf_counter()
+    error: list[str | None] = [None]
+    services: list[Services] = []
+    async with trio.open_nursery() as nursery:
+        if sensing_task and dispatcher.sensing is not None:
+            await nursery.start(dispatcher.sensing.run)
+        if robot is not None:
+            for fn, args in robot.tasks:
+                nursery.start_soon(_logged_task, fn, args)
+
+        async def server(task_status: trio.TaskStatus[int] = trio.TASK_STATUS_IGNORED) -> None:
+            services.append(await serve_dispatcher(dispatcher, config, task_status=task_status))
+            nursery.cancel_scope.cancel()  # the one session is over
+
+        port = await nursery.start(server)
+        if on_listening is not None:
+            on_listening(port)
+        if spec is None:
+            await trio.sleep_forever()
+
+        async def planner() -> None:
+            try:
+                error[0] = await run_planner(
+                    spec, config.host, port, dispatcher.name, planner_timeout
+                )
+            except PlannerError as err:
+                error[0] = str(err)
+            if not services:
+                # the planner is done and no session is over: do not wait
+                # for a connection that will not come (grace for the session's end)
+                with trio.move_on_after(5.0):
+                    while not services:
+                        await trio.sleep(0.01)
+            nursery.cancel_scope.cancel()
+
+        nursery.start_soon(planner)
+    stats = dispatcher.stats
+    status = services[0].last_status if services else None
+    if error[0] is not None:
+        log.warning("planner %s: %s", spec.label, error[0])
+    return RunReport(
+        instance=dispatcher.name,
+        planner=spec.label if spec is not None else "(connected)",
+        goal_reached=stats.goal_reached,
+        turns=stats.turns,
+        rounds=stats.rounds,
+        reward=stats.reward,
+        dispatcher_reward=stats.reward,
+        executed=[a.as_dict() for a in stats.executed],
+        failed_actions=stats.failed_actions,
+        planning_seconds=stats.planning_seconds,
+        execution_seconds=stats.execution_seconds,
+        replans=stats.replans,
+        cost=stats.cost,
+        session_status=status,
+        wall_seconds=time.perf_counter() - started,
+        planner_error=error[0],
+    )
+
+
+async def _logged_task(fn: Callable[..., Awaitable[Any]], args: tuple[Any, ...]) -> None:
+    """A robot task (a sensor source): its end or its error is logged, and
+    never ends the dispatcher."""
+    name = getattr(fn, "__name__", repr(fn))
+    try:
+        await fn(*args)
+    except Exception as err:  # noqa: BLE001 - a sensor source's bug stops that source only
+        log.error("robot task %s failed: %s: %s", name, type(err).__name__, err)
+    else:
+        log.info("robot task %s ended", name)
+
+
+@dataclass
+class Robot:
+    """What a robot file's `setup(robot)` wires up: handlers by action name
+    (`robot.handler("goto")` as a decorator, or `robot.handlers.register`),
+    sensor sources (`robot.sensing.publisher(stream)`, or a task started with
+    `robot.start_soon(fn, *args)` that feeds them), and the knowledge base."""
+
+    kb: KnowledgeBase
+    handlers: Handlers
+    sensing: Sensing | None
+    clock: Clock
+    tasks: list[tuple[Callable[..., Awaitable[Any]], tuple[Any, ...]]] = field(default_factory=list)
+
+    def handler(self, action: str) -> Callable[[Any], Any]:
+        """Register the decorated async function as `action`'s handler."""
+
+        def register(fn: Any) -> Any:
+            self.handlers.register(action, fn)
+            return fn
+
+        return register
+
+    def start_soon(self, fn: Callable[..., Awaitable[Any]], *args: Any) -> None:
+        """Run `fn(*args)` while the dispatcher runs (a sensor source)."""
+        self.tasks.append((fn, args))
+
+
+class RobotFileError(ValueError):
+    """A robot file that cannot be loaded; the message says why."""
+
+
+def load_robot_file(path: str | Path) -> Callable[[Robot], Any]:
+    """The `setup(robot)` function of a Python file."""
+    import importlib.util
+
+    path = Path(path)
+    spec = importlib.util.spec_from_file_location(f"ippc_robot_{path.stem}", path)
+    if spec is None or spec.loader is None:
+        raise RobotFileError(f"{path}: not a Python file")
+    module = importlib.util.module_from_spec(spec)
+    try:
+        spec.loader.exec_module(module)
+    except FileNotFoundError:
+        raise RobotFileError(f"{path}: no such file") from None
+    except Exception as err:
+        raise RobotFileError(f"{path}: {type(err).__name__}: {err}") from err
+    setup = getattr(module, "setup", None)
+    if not callable(setup):
+        raise RobotFileError(f"{path}: defines no setup(robot) function")
+    return setup  # type: ignore[no-any-return]
+
+
+def build_robot(
+    kb: KnowledgeBase,
+    config: SensingConfig | None,
+    *,
+    robot_file: str | Path | None = None,
+    action_timeout: float | None = 60.0,
+    settle_limit: float = 2.0,
+    stop_at_goal: bool = True,
+) -> tuple[Robot, Dispatcher]:
+    """A dispatcher on the wall clock with sensing from `config` and the
+    handlers and sensor sources a robot file's `setup(robot)` registers."""
+    clock = WallClock()
+    sensing = Sensing(kb, config, clock=clock) if config is not None else None
+    handlers = Handlers(clock=clock, timeout=action_timeout)
+    robot = Robot(kb, handlers, sensing, clock)
+    if robot_file is not None:
+        setup = load_robot_file(robot_file)
+        try:
+            setup(robot)
+        except Exception as err:
+            raise RobotFileError(
+                f"{robot_file}: setup failed: {type(err).__name__}: {err}"
+            ) from err
+    dispatcher = Dispatcher(
+        kb, handlers, sensing, clock=clock, settle_limit=settle_limit, stop_at_goal=stop_at_goal
+    )
+    return robot, dispatcher
+
+
+def executed_plan(db: str | Path, session: int | None = None) -> list[dict[str, Any]]:
+    """The executed plan of a dispatcher session in a result store (the
+    last session when `session` is None): one entry per dispatched action,
+    with its round, turn, outcome and message."""
+    from ..server.store import ResultStore
+
+    with ResultStore(db) as store:
+        sessions = store.sessions()
+        if not sessions:
+            raise KeyError(f"{db}: no session recorded")
+        chosen = sessions[-1] if session is None else store.session(session)
+        plan: list[dict[str, Any]] = []
+        for rnd in store.rounds(chosen["id"]):
+            for step in store.steps(rnd["id"]):
+                outcome = step["outcome"]
+                if outcome is None:
+                    continue  # a simulated step (rddl-server's)
+                for entry in outcome.get("actions", []):
+                    plan.append({"session": chosen["id"], **entry})
+        return plan
+
+
+def build_simulation(
+    kb: KnowledgeBase,
+    seed: int = 0,
+    *,
+    durations: PerAction = 1.0,
+    costs: PerAction | None = None,
+    failures: Any = None,
+    sensed: Any = None,
+    action_timeout: float | None = 60.0,
+    stop_at_goal: bool = True,
+) -> tuple[SimulatedWorld, Dispatcher]:
+    """The simulated world and a dispatcher wired to it (sensing reads the
+    world's streams; the world's handlers execute every action)."""
+    world = SimulatedWorld(
+        kb.model, seed, sensed=sensed, durations=durations, costs=costs, failures=failures
+    )
+    clock: Clock = world.clock
+    sensing = Sensing(kb, world.sensing_config(), clock=clock)
+    world.connect(sensing.feed)
+    handlers: Handlers = world.handlers(timeout=action_timeout)
+    dispatcher = Dispatcher(kb, handlers, sensing, clock=clock, stop_at_goal=stop_at_goal)
+    return world, dispatcher
+
+
+async def simulate_async(
+    domain: str | Path,
+    instance: str | Path,
+    *,
+    seed: int = 0,
+    planner: PlannerSpec | None = None,
+    rounds: int = DEFAULT_ROUNDS,
+    db: Path | None = None,
+    transcripts: Path | None = None,
+    planner_timeout: float | None = None,
+    **world: Any,
+) -> RunReport:
+    """`simulate`, inside a trio run."""
+    kb = KnowledgeBase.from_files(domain, instance)
+    the_world, dispatcher = build_simulation(kb, seed, **world)
+    spec = planner or PlannerSpec()
+    config = server_config(rounds=rounds, db=db, transcripts=transcripts)
+    config = ServerConfig(**{**config.__dict__, "seed": seed})
+    report = await dispatch_session(dispatcher, spec, config, planner_timeout=planner_timeout)
+    report.reward = the_world.reward
+    report.seed = seed
+    return report
+
+
+def simulate(
+    domain: str | Path,
+    instance: str | Path,
+    *,
+    seed: int = 0,
+    planner: PlannerSpec | None = None,
+    rounds: int = DEFAULT_ROUNDS,
+    db: Path | None = None,
+    transcripts: Path | None = None,
+    planner_timeout: float | None = None,
+    **world: Any,
+) -> RunReport:
+    """One whole simulated run (world, sensing, knowledge base, dispatcher,
+    planner, handlers): the report of the session. World options:
+    `durations`, `costs`, `failures`, `sensed`, `action_timeout`,
+    `stop_at_goal` (see `SimulatedWorld`)."""
+    return trio.run(
+        lambda: simulate_async(
+            domain,
+            instance,
+            seed=seed,
+            planner=planner,
+            rounds=rounds,
+            db=db,
+            transcripts=transcripts,
+            planner_timeout=planner_timeout,
+            **world,
+        )
+    )

@@ -1,0 +1,162 @@
+"""The whole loop: world (or a robot), sensing, knowledge base, dispatcher,
+planner over the IPPC protocol, handlers."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+from click.testing import CliRunner
+from ippc.dispatch.actions import Dispatch
+from ippc.dispatch.cli import main
+from ippc.dispatch.run import PlannerSpec, executed_plan, simulate
+from ippc.dispatch.world import SimulatedWorld
+from ippc.server.store import ResultStore
+
+from .conftest import DOMAIN, ONE, TWO
+
+# what the optimal policy does on courier_one with the world's seed 1: the
+# sender is at the desk when the robot gets there
+PLAN_SEED_1 = [
+    ("move(r1,hall,office)", "succeeded"),
+    ("pickup(r1)", "succeeded"),
+    ("move(r1,office,hall)", "succeeded"),
+    ("move(r1,hall,lab)", "succeeded"),
+    ("drop(r1)", "succeeded"),
+]
+
+
+def plan(report_executed: list[dict[str, object]]) -> list[tuple[object, object]]:
+    return [(e["action"], e["outcome"]) for e in report_executed]
+
+
+@pytest.mark.parametrize("no_header", [False, True], ids=["nul", "no-header"])
+def test_a_built_in_planner_reaches_the_goal_with_either_framing(
+    tmp_path: Path, no_header: bool
+) -> None:
+    db = tmp_path / "runs.db"
+    report = simulate(DOMAIN, ONE, seed=1, planner=PlannerSpec("exact", no_header=no_header), db=db)
+    assert report.goal_reached and report.session_status == "finished"
+    assert plan(report.executed) == PLAN_SEED_1
+    assert [e["turn"] for e in report.executed] == [1, 2, 3, 4, 5]
+    assert report.turns == 5 and report.rounds == 1 and report.failed_actions == 0
+    assert report.reward == -5.0  # -1 a step until delivered, as the world counted
+    assert report.execution_seconds == pytest.approx(5 * 1.1)  # 1 s an action + a settle period
+    assert report.planning_seconds > 0.0 and report.planner_error is None
+    # every turn is in the result store, with its outcome, and the plan prints from there
+    with ResultStore(db) as store:
+        (session,) = store.sessions()
+        assert session["no_header"] is no_header and session["status"] == "finished"
+        (rnd,) = store.rounds(session["id"])
+        assert rnd["status"] == "terminal" and rnd["turns_used"] == 5
+        steps = store.steps(rnd["id"])
+        assert [s["actions"] for s in steps][0] == [
+            ("move", ("r1", "hall", "office"), "true")
+        ]  # as received
+        assert ("robot-at", ("r1", "hall"), True) in steps[0]["state"]
+        assert steps[-1]["outcome"]["goal"] is True
+        assert all(s["execution_seconds"] == pytest.approx(1.1) for s in steps)
+    assert plan(executed_plan(db)) == PLAN_SEED_1
+
+
+def test_an_injected_failure_is_logged_and_the_next_turn_is_replanned() -> None:
+    def fail_first_pickup(d: Dispatch, world: SimulatedWorld) -> bool:
+        return d.action.name == "pickup" and world.steps == 1
+
+    report = simulate(DOMAIN, ONE, seed=1, planner=PlannerSpec("exact"), failures=fail_first_pickup)
+    assert report.goal_reached
+    executed = plan(report.executed)
+    assert executed[:3] == [
+        ("move(r1,hall,office)", "succeeded"),
+        ("pickup(r1)", "failed"),
+        ("pickup(r1)", "succeeded"),
+    ]
+    assert report.executed[1]["message"] == "injected failure"
+    assert report.failed_actions == 1 and report.replans == 1
+    assert report.turns == 6
+
+
+def test_fake_prost_plays_concurrent_actions(prost_dir: Path, tmp_path: Path, monkeypatch) -> None:  # type: ignore[no-untyped-def]
+    script = tmp_path / "actions.txt"
+    script.write_text(
+        "Submitted action: move(r1, hall, office) move(r2, lab, hall) \n"
+        "Submitted action: pickup(r1) \n"
+        "Submitted action: drop(r2) \n"  # r2 holds nothing: precondition false, not dispatched
+        "Submitted action: move(r1, office, hall) \n"
+        "Submitted action: move(r1, hall, lab) \n"
+        "Submitted action: drop(r1) \n"
+    )
+    monkeypatch.setenv("FAKE_PROST_ACTIONS_FILE", str(script))
+    report = simulate(
+        DOMAIN,
+        TWO,
+        seed=1,
+        planner=PlannerSpec(prost=str(prost_dir / "search")),
+        rounds=1,
+        durations={"move": 3.0, "pickup": 1.0, "drop": 1.0},
+    )
+    assert report.planner == "prost" and report.planner_error is None
+    assert report.goal_reached and report.turns == 6
+    assert plan(report.executed) == [
+        ("move(r1,hall,office)", "succeeded"),
+        ("move(r2,lab,hall)", "succeeded"),
+        ("pickup(r1)", "succeeded"),
+        ("drop(r2)", "precondition-false"),
+        ("move(r1,office,hall)", "succeeded"),
+        ("move(r1,hall,lab)", "succeeded"),
+        ("drop(r1)", "succeeded"),
+    ]
+    # the constraint that failed, with its place in the domain file
+    assert report.executed[3]["message"].startswith(f"{DOMAIN}:65:9: constraint violated")
+    assert "(drop(?r) => holding(?r)); actions: drop(r2) = true" in report.executed[3]["message"]
+    # the two moves of turn 1 ran at once: 3 s, not 6 (plus a settle period each turn)
+    assert report.execution_seconds == pytest.approx(3 + 1 + 0 + 3 + 3 + 1 + 6 * 0.1)
+
+
+def test_the_cli_simulates_and_writes_json(tmp_path: Path) -> None:
+    out = tmp_path / "run.json"
+    result = CliRunner().invoke(
+        main,
+        [
+            str(DOMAIN),
+            str(ONE),
+            "--simulate",
+            "--seed",
+            "1",
+            "--planner",
+            "exact",
+            "-q",
+            "--json-out",
+            str(out),
+        ],
+    )
+    assert result.exit_code == 0, result.output
+    assert "   2  pickup(r1)" in result.output
+    assert "goal reached: 5 turns in 1 round(s), reward -5" in result.output
+    data = json.loads(out.read_text())
+    for key in (
+        "goal_reached",
+        "turns",
+        "reward",
+        "executed",
+        "failed_actions",
+        "planning_seconds",
+    ):
+        assert key in data
+    assert data["goal_reached"] is True and data["failed_actions"] == 0
+    assert [(e["turn"], e["action"], e["outcome"]) for e in data["executed"]][1] == (
+        2,
+        "pickup(r1)",
+        "succeeded",
+    )
+
+
+def test_the_cli_refuses_bad_combinations(tmp_path: Path) -> None:
+    runner = CliRunner()
+    both = runner.invoke(main, [str(DOMAIN), str(ONE), "--planner", "noop", "--prost", "x"])
+    assert both.exit_code != 0 and "give --planner or --prost, not both" in both.output
+    unknown = runner.invoke(main, [str(DOMAIN), str(ONE), "--simulate", "--planner", "nope"])
+    assert unknown.exit_code != 0 and "nope" in unknown.output
+    nothing = runner.invoke(main, [])
+    assert nothing.exit_code != 0 and "DOMAIN and INSTANCE are needed" in nothing.output
