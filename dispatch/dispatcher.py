@@ -165,6 +165,7 @@ class DispatchStats:
     execution_seconds: float = 0.0  # on the dispatcher's clock, dispatch to settled
     goal_reached: bool = False
     replans: int = 0  # turns planned after an action that did not succeed
+    contradictions: int = 0  # sensed values that contradicted what the model knew
     executed: list[ExecutedAction] = field(default_factory=list)
 
     @property
@@ -210,7 +211,9 @@ class Dispatcher(Environment):
         self.action_timeout = handlers.timeout if action_timeout is None else action_timeout
         self.settle_limit = settle_limit
         self.stop_at_goal = stop_at_goal
-        self.sim = Simulator(model)
+        # the knowledge base's simulator: its non-fluents are the current ones
+        # (a client may write distances at start-up); see `refresh`
+        self.sim: Simulator = kb.simulator()
         self.codec = WireCodec(self.sim)
         self.draw_free = draw_free_fluents(model)
         self.stats = DispatchStats()
@@ -239,6 +242,14 @@ class Dispatcher(Environment):
 
     async def open(self, seed: int) -> Episode:
         return DispatchEpisode(self, seed)
+
+    def refresh(self) -> None:
+        """Follow the knowledge base's non-fluents (its simulator is rebuilt
+        when one changes)."""
+        sim = self.kb.simulator()
+        if sim is not self.sim:
+            self.sim = sim
+            self.codec = WireCodec(sim)
 
     # -- what a turn sends
 
@@ -304,6 +315,7 @@ class DispatchEpisode(Episode):
         self.d.stats.rounds += 1
 
     def turn(self) -> tuple[list[WireFluent] | None, str | None]:
+        self.d.refresh()
         self.snapshot = self.d.kb.to_state()
         return self.d.listing(self.snapshot)
 
@@ -398,6 +410,7 @@ class DispatchEpisode(Episode):
             record["ignored"] = extra
         if contradictions:
             record["contradictions"] = contradictions
+            stats.contradictions += len(contradictions)
         if goal and d.stop_at_goal:
             stats.goal_reached = True
             return Outcome(

@@ -75,6 +75,7 @@ class RunReport:
     execution_seconds: float  # on the dispatcher's clock (simulated seconds in the world)
     replans: int
     cost: float | None = None
+    contradictions: int = 0
     session_status: str | None = None
     seed: int | None = None
     wall_seconds: float = 0.0
@@ -98,6 +99,7 @@ class RunReport:
             "executed": self.executed,
             "failed_actions": self.failed_actions,
             "replans": self.replans,
+            "contradictions": self.contradictions,
             "planning_seconds": self.planning_seconds,
             "execution_seconds": self.execution_seconds,
             "cost": self.cost,
@@ -268,6 +270,7 @@ async def dispatch_session(
         execution_seconds=stats.execution_seconds,
         replans=stats.replans,
         cost=stats.cost,
+        contradictions=stats.contradictions,
         session_status=status,
         wall_seconds=time.perf_counter() - started,
         planner_error=error[0],
