@@ -1,0 +1,465 @@
+"""A JSON-lines request/reply protocol over TCP, on trio.
+
+One JSON object per line, UTF-8, `\\n`-terminated, both ways:
+
+* request: ``{"id": 7, "method": "kb.get", "params": {...}}`` (`params` may be
+  left out; `id` is any JSON number or string the client chooses);
+* reply: ``{"id": 7, "result": ...}`` or
+  ``{"id": 7, "error": {"code": "bad-params", "message": "..."}}``;
+* event (sent by the server when it chooses: a subscription, a dispatch to a
+  remote action handler): ``{"event": "kb.changed", ...}``.
+
+Theory of operation. The server owns no protocol logic of its own beyond
+this framing: modules `register` methods on it (the knowledge base's
+`kb.*`, the dispatcher's `sensing.*` and `handlers.*`). Each connection
+has one task that reads lines and one that writes: everything sent to a
+connection (replies and events, from any task or thread) goes through one
+bounded queue, so lines never interleave, and a client that stops reading
+is dropped once its queue is full instead of stalling the server.
+
+Requests of one connection are handled in the order they arrive: a plain
+function runs before the next line is read, so a controller's updates apply
+in the order it sent them; a coroutine function runs in its own task, so a
+slow one (waiting for a robot) does not hold up the rest, and its reply
+comes when it is done.
+
+Nothing a client sends ends the server or the connection. A line that is not
+JSON, not an object, names no known method, has bad params, is too long, or
+whose handler raises, gets an error reply (with the request's id when it
+had one, else null) and the connection reads on. Error codes:
+``parse-error``, ``bad-request``, ``unknown-method``, ``bad-params``,
+``line-too-long``, ``internal-error``, or the `code` of the exception the
+handler raised (`RequestError`, or any exception with a string `code`, such
+as `KBError`'s).
+"""
+
+from __future__ import annotations
+
+import inspect
+import itertools
+import json
+import logging
+import math
+import threading
+from collections.abc import AsyncIterator, Callable
+from contextlib import asynccontextmanager
+from dataclasses import dataclass
+from typing import Any
+
+import trio
+
+log = logging.getLogger(__name__)
+
+DEFAULT_HOST = "127.0.0.1"
+MAX_LINE = 1 << 20  # bytes; longer lines are refused (and skipped to their end)
+QUEUE_SIZE = 10_000  # lines waiting to be written to one connection
+
+Handler = Callable[[dict[str, Any], "Connection"], Any]
+
+
+class RequestError(Exception):
+    """Raised by a handler: the request gets an error reply with `code`."""
+
+    def __init__(self, code: str, message: str):
+        super().__init__(message)
+        self.code = code
+
+
+def encode(obj: Any) -> bytes:
+    """One protocol line: compact JSON (non-finite floats as strings
+    "inf"/"-inf"/"nan", which plain JSON cannot carry), then a newline."""
+    return (json.dumps(_finite(obj), separators=(",", ":"), allow_nan=False) + "\n").encode()
+
+
+def _finite(obj: Any) -> Any:
+    if isinstance(obj, float) and not math.isfinite(obj):
+        return "nan" if obj != obj else ("inf" if obj > 0 else "-inf")
+    if isinstance(obj, dict):
+        return {k: _finite(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_finite(v) for v in obj]
+    return obj
+
+
+def error_reply(rid: Any, code: str, message: str) -> dict[str, Any]:
+    return {"id": rid, "error": {"code": code, "message": message}}
+
+
+@dataclass
+class Method:
+    """A registered method: its handler and a one-line description."""
+
+    name: str
+    handler: Handler
+    doc: str
+    is_async: bool
+
+
+class Connection:
+    """One client connection, as handlers see it.
+
+    `send_event` queues an event from the trio thread; `post` queues any
+    object from any thread (a knowledge-base subscriber called by a sensing
+    thread). `state` is a dict where modules keep what they attach to a
+    connection; `on_close` callbacks run once, when it ends, for whatever
+    reason."""
+
+    _ids = itertools.count(1)
+
+    def __init__(self, peer: str, token: trio.lowlevel.TrioToken):
+        self.id = next(self._ids)
+        self.peer = peer
+        self.state: dict[str, Any] = {}
+        self.closed = False
+        self._token = token
+        self._thread = threading.get_ident()
+        self._send, self._receive = trio.open_memory_channel[bytes](QUEUE_SIZE)
+        self._close_callbacks: list[Callable[[Connection], None]] = []
+        self._cancel = trio.CancelScope()
+
+    def __repr__(self) -> str:
+        return f"Connection({self.id}, {self.peer})"
+
+    def send_event(self, event: str, fields: dict[str, Any] | None = None) -> None:
+        """Queue ``{"event": event, **fields}`` for this client."""
+        self.post({"event": event, **(fields or {})})
+
+    def post(self, obj: Any) -> None:
+        """Queue one line for this client, from any thread; dropped (with a
+        log line) once the connection is closed."""
+        if self.closed:
+            return
+        data = encode(obj)
+        if threading.get_ident() == self._thread:
+            self._put(data)
+        else:
+            # Never wait for the trio thread: it may itself be waiting for
+            # the thread that is posting (a lock, a join).
+            try:
+                self._token.run_sync_soon(self._put, data)
+            except trio.RunFinishedError:
+                pass
+
+    def _put(self, data: bytes) -> None:
+        if self.closed:
+            return
+        try:
+            self._send.send_nowait(data)
+        except trio.WouldBlock:
+            log.warning("%s: not reading (%d lines queued): closing it", self, QUEUE_SIZE)
+            self.close()
+        except (trio.BrokenResourceError, trio.ClosedResourceError):
+            pass
+
+    def on_close(self, callback: Callable[[Connection], None]) -> None:
+        """Call `callback(connection)` when the connection ends (at once if
+        it already has)."""
+        if self.closed:
+            callback(self)
+        else:
+            self._close_callbacks.append(callback)
+
+    def close(self) -> None:
+        """End the connection (its tasks stop; callbacks run)."""
+        self._cancel.cancel()
+        self._finish()
+
+    def _finish(self) -> None:
+        if self.closed:
+            return
+        self.closed = True
+        for cb in self._close_callbacks:
+            try:
+                cb(self)
+            except Exception:
+                log.exception("%s: a close callback failed", self)
+        self._close_callbacks.clear()
+
+
+class JsonlServer:
+    """Methods by name, served to any number of connections."""
+
+    def __init__(self, name: str = "jsonl") -> None:
+        self.name = name
+        self.methods: dict[str, Method] = {}
+        self.connections: set[Connection] = set()
+        self.register(
+            "methods", self._list_methods, "the methods this server offers, with a line each"
+        )
+
+    def register(self, name: str, handler: Handler, doc: str = "") -> None:
+        """Offer `handler(params, connection)` as method `name`; a plain
+        function or a coroutine function, whose return value (JSON-able) is
+        the result. A second registration of one name is an error."""
+        if name in self.methods:
+            raise ValueError(f"method '{name}' is registered already")
+        is_async = inspect.iscoroutinefunction(handler)
+        if not doc:
+            doc = (inspect.getdoc(handler) or "").split("\n")[0]
+        self.methods[name] = Method(name, handler, doc, is_async)
+
+    def _list_methods(self, params: dict[str, Any], conn: Connection) -> list[dict[str, str]]:
+        return [
+            {"method": m.name, "doc": m.doc}
+            for m in sorted(self.methods.values(), key=lambda m: m.name)
+        ]
+
+    def broadcast(self, event: str, fields: dict[str, Any] | None = None) -> None:
+        """Send an event to every open connection."""
+        for conn in list(self.connections):
+            conn.send_event(event, fields)
+
+    # -- serving -----------------------------------------------------
+
+    async def serve(
+        self,
+        host: str = DEFAULT_HOST,
+        port: int = 0,
+        *,
+        task_status: trio.TaskStatus[int] = trio.TASK_STATUS_IGNORED,
+    ) -> None:
+        """Listen on `host`:`port` (0: any free port, reported through
+        `task_status`) and serve every connection until cancelled."""
+        listeners = await trio.open_tcp_listeners(port, host=host)
+        bound = listeners[0].socket.getsockname()[1]
+        log.info("%s: listening on %s:%d", self.name, host, bound)
+        async with trio.open_nursery() as nursery:
+
+            async def accept_loop(listener: trio.SocketListener) -> None:
+                async with listener:
+                    while True:
+                        try:
+                            stream = await listener.accept()
+                        except OSError as err:  # e.g. too many open files: wait, go on
+                            log.error("%s: accept failed: %s", self.name, err)
+                            await trio.sleep(0.1)
+                            continue
+                        nursery.start_soon(self.handle_stream, stream)
+
+            for listener in listeners:
+                nursery.start_soon(accept_loop, listener)
+            task_status.started(bound)
+
+    async def handle_stream(self, stream: trio.abc.Stream) -> None:
+        """Serve one connection to its end."""
+        try:
+            host, cport = stream.socket.getpeername()[:2]  # type: ignore[attr-defined]
+            peer = f"{host}:{cport}"
+        except (AttributeError, OSError):
+            peer = "?"
+        conn = Connection(peer, trio.lowlevel.current_trio_token())
+        self.connections.add(conn)
+        log.info("%s: %s connected", self.name, conn)
+        try:
+            with conn._cancel:
+                async with stream, trio.open_nursery() as nursery:
+                    nursery.start_soon(self._writer, conn, stream)
+                    async with trio.open_nursery() as requests:
+                        await self._reader(conn, stream, requests)
+                        # The client has closed its side: requests still under
+                        # way have nobody to wait for their replies.
+                        requests.cancel_scope.cancel()
+                    conn._send.close()  # the writer sends what is queued, then ends
+        except (trio.BrokenResourceError, trio.ClosedResourceError, OSError) as err:
+            log.info("%s: %s: %s", self.name, conn, err)
+        finally:
+            self.connections.discard(conn)
+            conn._finish()
+            log.info("%s: %s closed", self.name, conn)
+
+    async def _writer(self, conn: Connection, stream: trio.abc.Stream) -> None:
+        async with conn._receive:
+            async for data in conn._receive:
+                await stream.send_all(data)
+
+    async def _reader(
+        self, conn: Connection, stream: trio.abc.Stream, nursery: trio.Nursery
+    ) -> None:
+        buf = bytearray()
+        skipping = False  # inside a line that was too long
+        while True:
+            data = await stream.receive_some(65536)
+            if not data:
+                if buf.strip() and not skipping:
+                    await self._line(conn, bytes(buf), nursery)
+                return
+            buf += data
+            while True:
+                nl = buf.find(b"\n")
+                if nl < 0:
+                    if len(buf) > MAX_LINE and not skipping:
+                        conn.post(
+                            error_reply(
+                                None, "line-too-long", f"a line longer than {MAX_LINE} bytes"
+                            )
+                        )
+                        skipping = True
+                    if skipping:
+                        buf.clear()
+                    break
+                line = bytes(buf[:nl])
+                del buf[: nl + 1]
+                if skipping:
+                    skipping = False
+                    continue
+                if len(line) > MAX_LINE:
+                    conn.post(
+                        error_reply(None, "line-too-long", f"a line longer than {MAX_LINE} bytes")
+                    )
+                    continue
+                if line.strip():
+                    await self._line(conn, line, nursery)
+
+    async def _line(self, conn: Connection, line: bytes, nursery: trio.Nursery) -> None:
+        try:
+            request = json.loads(line)
+        except (UnicodeDecodeError, json.JSONDecodeError) as err:
+            conn.post(error_reply(None, "parse-error", f"not JSON: {err}"))
+            return
+        if not isinstance(request, dict):
+            conn.post(error_reply(None, "bad-request", "a request is a JSON object"))
+            return
+        rid = request.get("id")
+        if isinstance(rid, (dict, list)):
+            conn.post(error_reply(None, "bad-request", "'id' must be a number, a string or null"))
+            return
+        name = request.get("method")
+        if not isinstance(name, str):
+            conn.post(error_reply(rid, "bad-request", "a request needs a 'method' (a string)"))
+            return
+        method = self.methods.get(name)
+        if method is None:
+            conn.post(
+                error_reply(
+                    rid, "unknown-method", f"no method '{name}' (call 'methods' for the list)"
+                )
+            )
+            return
+        params = request.get("params", {})
+        if params is None:
+            params = {}
+        if not isinstance(params, dict):
+            conn.post(error_reply(rid, "bad-params", f"'{name}': params must be a JSON object"))
+            return
+        if method.is_async:
+            nursery.start_soon(self._run_async, conn, method, rid, params)
+        else:
+            conn.post(self._outcome(rid, name, lambda: method.handler(params, conn)))
+
+    async def _run_async(
+        self, conn: Connection, method: Method, rid: Any, params: dict[str, Any]
+    ) -> None:
+        try:
+            result = await method.handler(params, conn)
+        except Exception as err:
+            conn.post(self._error(rid, method.name, err))
+            return
+        conn.post(self._reply(rid, method.name, result))
+
+    def _outcome(self, rid: Any, name: str, call: Callable[[], Any]) -> dict[str, Any]:
+        try:
+            result = call()
+        except Exception as err:
+            return self._error(rid, name, err)
+        return self._reply(rid, name, result)
+
+    def _reply(self, rid: Any, name: str, result: Any) -> dict[str, Any]:
+        try:
+            encode(result)
+        except (TypeError, ValueError) as err:
+            log.error("%s: '%s' returned a result JSON cannot carry: %s", self.name, name, err)
+            return error_reply(rid, "internal-error", f"'{name}': the result is not JSON: {err}")
+        return {"id": rid, "result": result}
+
+    def _error(self, rid: Any, name: str, err: Exception) -> dict[str, Any]:
+        code = getattr(err, "code", None)
+        if isinstance(code, str):
+            return error_reply(rid, code, f"{name}: {err}")
+        if isinstance(err, (KeyError, TypeError, ValueError)):
+            what = f"missing param {err}" if isinstance(err, KeyError) else str(err)
+            return error_reply(rid, "bad-params", f"{name}: {what}")
+        log.exception("%s: method '%s' failed", self.name, name)
+        return error_reply(rid, "internal-error", f"{name}: {type(err).__name__}: {err}")
+
+
+# ------------------------------------------------------------------ client
+
+
+class JsonlClient:
+    """A client of a `JsonlServer`, for Python controllers and tests:
+    `await call(method, params)` returns the result or raises
+    `RequestError`; events are kept in order for `next_event`."""
+
+    def __init__(self, stream: trio.SocketStream):
+        self.stream = stream
+        self._ids = itertools.count(1)
+        self._waiting: dict[Any, trio.MemorySendChannel[dict[str, Any]]] = {}
+        self._events_send, self._events = trio.open_memory_channel[dict[str, Any]](QUEUE_SIZE)
+        self._lock = trio.Lock()
+
+    async def call(self, method: str, params: dict[str, Any] | None = None) -> Any:
+        """Send one request and wait for its reply."""
+        rid = next(self._ids)
+        send, receive = trio.open_memory_channel[dict[str, Any]](1)
+        self._waiting[rid] = send
+        request: dict[str, Any] = {"id": rid, "method": method}
+        if params is not None:
+            request["params"] = params
+        async with self._lock:
+            await self.stream.send_all(encode(request))
+        reply = await receive.receive()
+        if "error" in reply:
+            raise RequestError(reply["error"]["code"], reply["error"]["message"])
+        return reply.get("result")
+
+    async def send_line(self, data: bytes) -> None:
+        """Send raw bytes (a test's malformed line)."""
+        async with self._lock:
+            await self.stream.send_all(data)
+
+    async def next_event(self) -> dict[str, Any]:
+        """The next event (or reply no `call` waits for), in arrival order."""
+        return await self._events.receive()
+
+    async def _read(self) -> None:
+        buf = bytearray()
+        while True:
+            data = await self.stream.receive_some(65536)
+            if not data:
+                await self._events_send.aclose()
+                return
+            buf += data
+            while (nl := buf.find(b"\n")) >= 0:
+                line = bytes(buf[:nl])
+                del buf[: nl + 1]
+                msg = json.loads(line)
+                waiter = self._waiting.pop(msg.get("id"), None) if "event" not in msg else None
+                if waiter is not None:
+                    waiter.send_nowait(msg)
+                else:
+                    await self._events_send.send(msg)
+
+
+@asynccontextmanager
+async def connect(port: int, host: str = DEFAULT_HOST) -> AsyncIterator[JsonlClient]:
+    """A connected `JsonlClient`, closed on exit."""
+    stream = await trio.open_tcp_stream(host, port)
+    client = JsonlClient(stream)
+    async with stream, trio.open_nursery() as nursery:
+        nursery.start_soon(client._read)
+        try:
+            yield client
+        finally:
+            nursery.cancel_scope.cancel()
+
+
+__all__ = [
+    "Connection",
+    "DEFAULT_HOST",
+    "JsonlClient",
+    "JsonlServer",
+    "Method",
+    "RequestError",
+    "connect",
+    "encode",
+]

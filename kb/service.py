@@ -1,0 +1,220 @@
+"""The knowledge base's methods on a JSON-lines server (`kb.*`).
+
+`register_kb(server, kb)` offers every query and update of a
+`KnowledgeBase` on a `JsonlServer`, so that a controller in any language
+can use it; docs/knowledge-base.md lists them with a transcript. Names
+follow ROSPlan's services (`kb.domain_name` for domain/name,
+`kb.operator` for domain/operator_details, ...); params are JSON objects,
+ground arguments are lists of names, values are JSON values (enum values
+"@name").
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+import trio
+
+from .jsonl import DEFAULT_HOST, Connection, JsonlServer, RequestError
+from .knowledge_base import KnowledgeBase
+from .store import Change, Update
+
+SUBSCRIPTION = "kb.subscription"  # key of a connection's subscription in Connection.state
+CHANGED_EVENT = "kb.changed"
+
+
+def _param(
+    params: dict[str, Any], key: str, kind: type | tuple[type, ...], default: Any = ...
+) -> Any:
+    """`params[key]` checked to be of `kind` (a bool is no number here)."""
+    if key not in params or (params[key] is None and default is not ...):
+        if default is ...:
+            raise RequestError("bad-params", f"missing param '{key}'")
+        return default
+    value = params[key]
+    kinds = kind if isinstance(kind, tuple) else (kind,)
+    if not isinstance(value, kinds) or (isinstance(value, bool) and bool not in kinds):
+        names = " or ".join(k.__name__ for k in kinds)
+        raise RequestError("bad-params", f"param '{key}' must be {names}, not {value!r}")
+    return value
+
+
+def _args(params: dict[str, Any], key: str = "args") -> tuple[str, ...]:
+    args = _param(params, key, list, [])
+    if not all(isinstance(a, str) for a in args):
+        raise RequestError("bad-params", f"param '{key}' must be a list of names, not {args!r}")
+    return tuple(args)
+
+
+def _update(n: int, item: Any) -> Update:
+    if not isinstance(item, dict):
+        raise RequestError("bad-params", f"update {n + 1} must be an object, not {item!r}")
+    try:
+        op = _param(item, "op", str)
+        fluent = _param(item, "fluent", str)
+        args = _args(item)
+    except RequestError as err:
+        raise RequestError("bad-params", f"update {n + 1}: {err}") from None
+    return Update(op, fluent, args, item.get("value"))  # type: ignore[arg-type]
+
+
+def _changes(changes: list[Change]) -> list[dict[str, Any]]:
+    return [c.to_json() for c in changes]
+
+
+def register_kb(server: JsonlServer, kb: KnowledgeBase) -> None:
+    """Offer `kb`'s queries and updates as `kb.*` methods on `server`."""
+
+    def method(name: str) -> Callable[[Callable[[dict[str, Any], Connection], Any]], Any]:
+        def deco(fn: Callable[[dict[str, Any], Connection], Any]) -> Any:
+            server.register(name, fn)
+            return fn
+
+        return deco
+
+    # -- state
+
+    @method("kb.get")
+    def get(params: dict[str, Any], conn: Connection) -> Any:
+        """the value of one grounding: {fluent, args}"""
+        return kb.get(_param(params, "fluent", str), _args(params))
+
+    @method("kb.facts")
+    def facts(params: dict[str, Any], conn: Connection) -> Any:
+        """every grounding and its value (false facts included): {fluent?, non_fluents?}"""
+        fluent = _param(params, "fluent", str, None)
+        nf = _param(params, "non_fluents", bool, False)
+        return [
+            {"fluent": name, "args": list(args), "value": value}
+            for (name, args), value in kb.facts(fluent, non_fluents=nf).items()
+        ]
+
+    @method("kb.apply")
+    def apply(params: dict[str, Any], conn: Connection) -> Any:
+        """apply a batch of updates atomically: {updates: [{op, fluent, args, value?}], source?}"""
+        items = _param(params, "updates", list)
+        source = _param(params, "source", str, f"jsonl:{conn.peer}")
+        updates = [_update(n, item) for n, item in enumerate(items)]
+        return {"changes": _changes(kb.apply(updates, source))}
+
+    @method("kb.subscribe")
+    def subscribe(params: dict[str, Any], conn: Connection) -> Any:
+        """send this connection a kb.changed event after every change: {fluents?}"""
+        names = _param(params, "fluents", list, None)
+        wanted = None
+        if names is not None:
+            for f in names:
+                if not isinstance(f, str):
+                    raise RequestError("bad-params", f"param 'fluents' must list names, not {f!r}")
+                kb.is_sensed(f)  # an unknown name is an error now, not a silent nothing later
+            wanted = frozenset(names)
+
+        def tell(changes: list[Change], source: str) -> None:
+            mine = changes if wanted is None else [c for c in changes if c.fluent in wanted]
+            if mine and not conn.closed:  # (send_event is safe from any thread)
+                conn.send_event(CHANGED_EVENT, {"source": source, "changes": _changes(mine)})
+
+        old = conn.state.pop(SUBSCRIPTION, None)
+        if old is not None:
+            old()
+        else:
+            conn.on_close(_drop_subscription)
+        conn.state[SUBSCRIPTION] = kb.subscribe(tell)
+        return {"subscribed": sorted(wanted) if wanted is not None else "all"}
+
+    @method("kb.unsubscribe")
+    def unsubscribe(params: dict[str, Any], conn: Connection) -> Any:
+        """stop the kb.changed events of this connection"""
+        old = conn.state.pop(SUBSCRIPTION, None)
+        if old is not None:
+            old()
+        return {"subscribed": old is not None}
+
+    @method("kb.set_sensed")
+    def set_sensed(params: dict[str, Any], conn: Connection) -> Any:
+        """mark a fluent as sensed or not: {fluent, sensed?}"""
+        kb.set_sensed(_param(params, "fluent", str), _param(params, "sensed", bool, True))
+        return sorted(kb.sensed_fluents())
+
+    @method("kb.sensed")
+    def sensed(params: dict[str, Any], conn: Connection) -> Any:
+        """the fluents marked as sensed"""
+        return sorted(kb.sensed_fluents())
+
+    # -- RDDL parameters
+
+    def parameters() -> dict[str, Any]:
+        return {
+            "horizon": kb.horizon,
+            "discount": kb.discount,
+            "max_nondef_actions": kb.max_nondef_actions,
+        }
+
+    @method("kb.parameters")
+    def get_parameters(params: dict[str, Any], conn: Connection) -> Any:
+        """horizon, discount and max_nondef_actions (null: unbounded)"""
+        return parameters()
+
+    @method("kb.set_parameters")
+    def set_parameters(params: dict[str, Any], conn: Connection) -> Any:
+        """set any of horizon, discount, max_nondef_actions (all or none)"""
+        known = ("horizon", "discount", "max_nondef_actions")
+        unknown = sorted(set(params) - set(known))
+        if unknown:
+            raise RequestError("bad-params", f"unknown param(s) {', '.join(unknown)}")
+        before = parameters()
+        try:
+            for key in known:
+                if key in params:
+                    setattr(kb, key, params[key])
+        except Exception:
+            for key, value in before.items():  # valid a moment ago: all or none
+                setattr(kb, key, value)
+            raise
+        return parameters()
+
+    # -- goal and reward
+
+    @method("kb.goal")
+    def goal(params: dict[str, Any], conn: Connection) -> Any:
+        """the goal: ground facts, the lifted formula, what is not in facts (null: none)"""
+        g = kb.goal()
+        return None if g is None else g.to_json()
+
+    @method("kb.goal_holds")
+    def goal_holds(params: dict[str, Any], conn: Connection) -> Any:
+        """whether the goal holds in the current state (null: no goal)"""
+        return kb.goal_holds()
+
+    @method("kb.immediate_reward")
+    def immediate_reward(params: dict[str, Any], conn: Connection) -> Any:
+        """R(s, a) on the current state: {actions: ["name(a, b)", ...]}"""
+        actions = _param(params, "actions", list, [])
+        for a in actions:
+            if not isinstance(a, str):
+                raise RequestError(
+                    "bad-params", f"actions are strings like 'move(a, b)', not {a!r}"
+                )
+        return kb.immediate_reward(actions)
+
+
+def _drop_subscription(conn: Connection) -> None:
+    old = conn.state.pop(SUBSCRIPTION, None)
+    if old is not None:
+        old()
+
+
+async def serve_kb(
+    kb: KnowledgeBase,
+    host: str = DEFAULT_HOST,
+    port: int = 0,
+    *,
+    server: JsonlServer | None = None,
+    task_status: trio.TaskStatus[int] = trio.TASK_STATUS_IGNORED,
+) -> None:
+    """Serve `kb` (on `server`, or a new one) until cancelled; the bound port
+    is reported through `task_status`."""
+    server = server or JsonlServer("kb")
+    register_kb(server, kb)
+    await server.serve(host, port, task_status=task_status)
