@@ -339,19 +339,15 @@ def _planners(raw: Any, lines: _Lines, bad: Any) -> list[PlannerSpec]:
         out.append(
             PlannerSpec(label, name, options, None, None if timeout is None else float(timeout))
         )
+    by_label = {spec.label: spec for spec in out}
     for base in BASELINES:
-        if base in labels:
-            spec = (
-                next(s for s in out if s.label == base)
-                if any(s.label == base for s in out)
-                else None
+        spec = by_label.get(base)
+        if spec is not None and spec.planner != base:
+            bad(
+                lines.table(f"planners.{base}"),
+                f"planners.{base}: the label '{base}' is kept for the {base} baseline",
             )
-            if spec is not None and spec.planner != base:
-                bad(
-                    lines.table(f"planners.{base}"),
-                    f"planners.{base}: the label '{base}' is kept for the {base} baseline",
-                )
-        else:
+        elif base not in labels:
             out.insert(BASELINES.index(base), PlannerSpec(base, base))
     return out
 

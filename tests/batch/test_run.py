@@ -203,3 +203,49 @@ def test_cli_score_json_and_report(tmp_path: Path, small_reference) -> None:
     assert (report / "score_per_instance.png").read_bytes()[:4] == b"\x89PNG"
     rows = (report / "reward_per_round.csv").read_text().splitlines()
     assert rows[0] == "instance,planner,round,running_mean,ci95" and len(rows) == 1 + 12 * 2
+
+
+def test_against_an_existing_server_records_what_the_client_saw(tmp_path: Path) -> None:
+    server = subprocess.Popen(
+        [
+            str(Path(sys.executable).parent / "rddl-server"),
+            str(REPO / "domains" / "print_fetch"),
+            "--port",
+            "0",
+            "--rounds",
+            "2",
+            "--workers",
+            "1",
+            "-q",
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.DEVNULL,
+        start_new_session=True,
+    )
+    try:
+        assert server.stdout is not None
+        line = server.stdout.readline().decode()  # "listening on 127.0.0.1:PORT"
+        port = int(line.rsplit(":", 1)[1])
+        path = tmp_path / "srv.toml"
+        path.write_text(
+            f'name = "srv"\nrounds = 2\ntimeout = 60\ninstances = ["{REPO / "domains" / "print_fetch" / "instance1.rddl"}"]\n'
+            '[planners.cmd]\ncommand = "true {port}"\n'
+        )
+        from ippc.batch import ExperimentError
+
+        with pytest.raises(
+            ExperimentError, match="planners given as commands .cmd. need the batch's own server"
+        ):
+            run_batch(load_experiment(path), tmp_path / "x.sqlite", server=("127.0.0.1", port))
+        path.write_text(path.read_text().split("[planners.cmd]")[0])
+        db = tmp_path / "srv.sqlite"
+        summary = run_batch(load_experiment(path), db, server=("127.0.0.1", port))
+        assert (summary.finished, summary.failed) == (2, 0)
+        with BatchStore(db) as store:
+            noop = [r.reward for r in store.round_records() if r.planner == "noop"]
+            assert noop == [-20.0, -20.0]  # noop on print_fetch_inst_1, every round
+            assert store.raw("SELECT count(*) FROM steps")[0][0] == 0  # the client saw no steps
+            assert {r[0] for r in store.raw("SELECT peer FROM sessions")} == {f"127.0.0.1:{port}"}
+    finally:
+        os.killpg(server.pid, signal.SIGTERM)
+        server.wait(20)
