@@ -104,6 +104,12 @@ def print_report(report: RunReport) -> None:
 @click.option(
     "--action-timeout", default=60.0, show_default=True, help="Seconds a handler has per action."
 )
+@click.option(
+    "--kb-port",
+    type=int,
+    default=None,
+    help="Serve the knowledge base's JSON-lines socket here (kb.*, sensing.*, handlers.*); 0 = any free port.",
+)
 @click.option("--no-stop-at-goal", is_flag=True, help="Play every round to its horizon.")
 @click.option(
     "--db",
@@ -135,6 +141,7 @@ def main(
     rounds: int,
     timeout: float,
     action_timeout: float,
+    kb_port: int | None,
     no_stop_at_goal: bool,
     db: Path | None,
     json_out: Path | None,
@@ -204,6 +211,7 @@ def main(
             action_timeout=action_timeout,
             stop_at_goal=not no_stop_at_goal,
             db=db,
+            kb_port=kb_port,
         )
     print_report(report)
     if json_out is not None:
@@ -246,6 +254,10 @@ def _robot(
         click.echo(f"listening on {opts['host']}:{bound}")
         sys.stdout.flush()
 
+    def kb_listening(bound: int) -> None:
+        click.echo(f"knowledge base on {opts['host']}:{bound}")
+        sys.stdout.flush()
+
     try:
         return trio.run(
             lambda: dispatch_session(
@@ -255,6 +267,8 @@ def _robot(
                 sensing_task=True,
                 on_listening=listening,
                 robot=robot,
+                kb_port=opts["kb_port"],
+                on_kb_listening=kb_listening,
             )
         )
     except BaseException as exc:  # trio hands some errors over in exception groups

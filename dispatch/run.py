@@ -24,6 +24,8 @@ from typing import Any
 import trio
 
 from ..kb import KnowledgeBase
+from ..kb.jsonl import JsonlServer
+from ..kb.service import register_kb
 from ..planners.base import ExternalPlanner, Planner, PlannerError, make_planner
 from ..server.app import serve
 from ..server.config import ServerConfig
@@ -32,6 +34,7 @@ from .actions import Handlers
 from .clock import Clock, WallClock
 from .config import SensingConfig
 from .dispatcher import Dispatcher
+from .remote import register_dispatch
 from .sensing import Sensing
 from .world import PerAction, SimulatedWorld
 
@@ -210,12 +213,17 @@ async def dispatch_session(
     planner_timeout: float | None = None,
     on_listening: Callable[[int], None] | None = None,
     robot: Robot | None = None,
+    kb_port: int | None = None,
+    on_kb_listening: Callable[[int], None] | None = None,
 ) -> RunReport:
     """Serve `dispatcher`, start the planner once it listens (none: wait
     for one to connect), play one session, and report. `sensing_task` runs
     the dispatcher's sensing batches at their rate meanwhile (a robot; the
     simulated world needs none); `robot`'s tasks (sensor sources) run
-    meanwhile too."""
+    meanwhile too. With `kb_port`, the knowledge base's JSON-lines socket
+    (the `kb.*` methods and the dispatcher's `sensing.*` and `handlers.*`,
+    see `ippc.dispatch.remote`) is served on that port (0: any free one,
+    reported through `on_kb_listening`) before the planner starts."""
     started = time.perf_counter()
     error: list[str | None] = [None]
     services: list[Services] = []
@@ -225,6 +233,18 @@ async def dispatch_session(
         if robot is not None:
             for fn, args in robot.tasks:
                 nursery.start_soon(_logged_task, fn, args)
+        if kb_port is not None:
+            socket = JsonlServer("rddl-dispatch")
+            register_kb(socket, dispatcher.kb)
+            register_dispatch(
+                socket,
+                dispatcher.handlers,
+                dispatcher.sensing,
+                [p.name for p in dispatcher.sim.action_fluents],
+            )
+            bound = await nursery.start(socket.serve, config.host, kb_port)
+            if on_kb_listening is not None:
+                on_kb_listening(bound)
 
         async def server(task_status: trio.TaskStatus[int] = trio.TASK_STATUS_IGNORED) -> None:
             services.append(await serve_dispatcher(dispatcher, config, task_status=task_status))
