@@ -1,0 +1,86 @@
+"""The layout table of docs/architecture.md is the import rule: every module of a folder
+imports only the ippc packages its row allows (and what those allow, transitively), and
+every package folder has a row."""
+
+from __future__ import annotations
+
+import ast
+import re
+
+from .docs import REPO
+
+PAGE = REPO / "docs" / "architecture.md"
+
+
+def layout_rules(text: str) -> dict[str, set[str]]:
+    """{folder: the ippc packages it may import directly}, from the page's Layout table."""
+    section = text.split("\n## Layout\n", 1)[1].split("\n## ", 1)[0]
+    rules: dict[str, set[str]] = {}
+    for line in section.splitlines():
+        cells = [c.strip() for c in line.strip().strip("|").split("|")]
+        m = re.fullmatch(r"`([a-z_]+)/`", cells[0]) if len(cells) == 3 else None
+        if m:
+            allowed = set(re.findall(r"`([a-z_]+)`", cells[2]))
+            assert allowed or cells[2] == "-", f"architecture.md: cannot read {cells[2]!r}"
+            rules[m.group(1)] = allowed
+    return rules
+
+
+def closure(rules: dict[str, set[str]], folder: str) -> set[str]:
+    """What `folder` may import: its row, and the rows of those, transitively."""
+    seen: set[str] = set()
+    todo = [folder]
+    while todo:
+        for dep in rules.get(todo.pop(), set()):
+            if dep not in seen:
+                seen.add(dep)
+                todo.append(dep)
+    return seen
+
+
+def ippc_imports(source: str, folder: str) -> set[str]:
+    """The top-level ippc packages a module of `folder` imports (its own left out)."""
+    found: set[str] = set()
+    for node in ast.walk(ast.parse(source)):
+        if isinstance(node, ast.ImportFrom):
+            if node.level >= 2 and node.module:  # from ..rddl.x import y
+                found.add(node.module.split(".")[0])
+            elif node.level == 0 and node.module and node.module.startswith("ippc."):
+                found.add(node.module.split(".")[1])
+            elif node.level == 0 and node.module == "ippc":
+                found.update(alias.name for alias in node.names)
+        elif isinstance(node, ast.Import):
+            for alias in node.names:
+                if alias.name.startswith("ippc."):
+                    found.add(alias.name.split(".")[1])
+    return found - {folder}
+
+
+def test_reading_the_rules() -> None:
+    text = (
+        "# A\n\n## Layout\n\n| folder | job | may import |\n|---|---|---|\n"
+        "| `a/` | x | - |\n| `b/` | y | `a` |\n| `c/` | z | `b`, `d` |\n\n## Next\n| `e/` | | - |\n"
+    )
+    rules = layout_rules(text)
+    assert rules == {"a": set(), "b": {"a"}, "c": {"b", "d"}}
+    assert closure(rules, "c") == {"a", "b", "d"}
+    source = "from ..a.m import f\nfrom . import g\nimport ippc.b.x\nfrom ippc.c import h\n"
+    assert ippc_imports(source, "c") == {"a", "b"}
+
+
+def test_every_package_folder_has_a_row() -> None:
+    rules = layout_rules(PAGE.read_text(encoding="utf-8"))
+    packages = {p.parent.name for p in REPO.glob("*/__init__.py")} - {"tests"}
+    assert packages <= set(rules), f"add a row to docs/architecture.md: {packages - set(rules)}"
+
+
+def test_imports_follow_the_layout() -> None:
+    rules = layout_rules(PAGE.read_text(encoding="utf-8"))
+    wrong = []
+    for folder in sorted(rules):
+        allowed = closure(rules, folder)
+        for path in sorted((REPO / folder).rglob("*.py")):
+            for dep in sorted(ippc_imports(path.read_text(encoding="utf-8"), folder)):
+                if dep not in allowed:
+                    wrong.append(f"{path.relative_to(REPO)} imports ippc.{dep}")
+    assert not wrong, "not allowed by docs/architecture.md's Layout table:\n" + "\n".join(wrong)
