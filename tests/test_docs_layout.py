@@ -84,3 +84,56 @@ def test_imports_follow_the_layout() -> None:
                 if dep not in allowed:
                     wrong.append(f"{path.relative_to(REPO)} imports ippc.{dep}")
     assert not wrong, "not allowed by docs/architecture.md's Layout table:\n" + "\n".join(wrong)
+
+
+def _defined_names() -> tuple[set[str], set[tuple[str, str]]]:
+    """The names defined in every package module, and every (class, method) pair, methods
+    inherited from a base class of the packages included."""
+    names: set[str] = set()
+    methods: set[tuple[str, str]] = set()
+    bases: dict[str, set[str]] = {}
+    for folder in layout_rules(PAGE.read_text(encoding="utf-8")):
+        for path in (REPO / folder).rglob("*.py"):
+            for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+                if isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef | ast.ClassDef):
+                    names.add(node.name)
+                if isinstance(node, ast.ClassDef):
+                    bases.setdefault(node.name, set()).update(
+                        b.value.id
+                        if isinstance(b, ast.Subscript) and isinstance(b.value, ast.Name)
+                        else b.id
+                        if isinstance(b, ast.Name)
+                        else ""
+                        for b in node.bases
+                    )
+                    for item in node.body:
+                        if isinstance(item, ast.FunctionDef | ast.AsyncFunctionDef):
+                            methods.add((node.name, item.name))
+                elif isinstance(node, ast.Assign):
+                    names.update(t.id for t in node.targets if isinstance(t, ast.Name))
+                elif isinstance(node, ast.AnnAssign) and isinstance(node.target, ast.Name):
+                    names.add(node.target.id)
+    grown = True
+    while grown:  # inherit, until nothing new comes down
+        inherited = {(c, m) for c, bs in bases.items() for b, m in methods if b in bs}
+        grown = not inherited <= methods
+        methods |= inherited
+    return names, methods
+
+
+def test_the_request_path_names_what_exists() -> None:
+    """Every file, `Class.method` and function the architecture page names is in the code
+    (a rename that forgets the page fails here)."""
+    text = PAGE.read_text(encoding="utf-8")
+    names, methods = _defined_names()
+    missing = []
+    for span in re.findall(r"`([^`]+)`", text):
+        if re.fullmatch(r"[a-z_]+/[a-z_/]+\.[a-z]+", span):
+            if not (REPO / span).exists():
+                missing.append(span)
+        elif m := re.fullmatch(r"([A-Z][A-Za-z]+)\.([a-z_]+)(?:\(.*\))?", span):
+            if (m.group(1), m.group(2)) not in methods:
+                missing.append(span)
+        elif re.fullmatch(r"_?[a-z]+_[a-z_]+|_[a-z]+", span) and span not in names:
+            missing.append(span)
+    assert not missing, f"docs/architecture.md names what the code does not have: {missing}"
