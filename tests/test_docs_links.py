@@ -54,3 +54,17 @@ def test_relative_links_resolve(page: Path) -> None:
         elif REPO not in dest.parents and dest != REPO:
             broken.append(f"{where}: points outside the repository")
     assert not broken, "\n".join(broken)
+
+
+@pytest.mark.parametrize("page", PAGES, ids=lambda p: p.relative_to(REPO).as_posix())
+def test_files_named_in_code_spans_exist(page: Path) -> None:
+    """A path in a code span that starts at one of the repository's folders (`rddl/lexer.py`,
+    `tests/fakes/fake_prost.py`) names a file or folder that is there."""
+    tops = {p.name for p in REPO.iterdir() if p.is_dir() and not p.name.startswith(".")}
+    missing = []
+    for span in re.findall(r"`([^`\s]+)`", page.read_text(encoding="utf-8")):
+        first = span.split("/", 1)[0]
+        if "/" in span and first in tops and not any(c in span for c in "*<>$"):
+            if not (REPO / span.rstrip("/")).exists():
+                missing.append(span)
+    assert not missing, f"{page.relative_to(REPO)} names paths that are not there: {missing}"
