@@ -7,7 +7,13 @@ import re
 import sqlite3
 from pathlib import Path
 
-from ippc.server.store import ROUND_STATUSES, SCHEMA_VERSION, SESSION_STATUSES, ResultStore
+from ippc.server.store import (
+    JOB_STATUSES,
+    ROUND_STATUSES,
+    SCHEMA_VERSION,
+    SESSION_STATUSES,
+    ResultStore,
+)
 
 from .docs import REPO
 
@@ -35,12 +41,18 @@ def test_the_tables_are_the_schema(tmp_path: Path) -> None:
     db = sqlite3.connect(tmp_path / "r.db")
     try:
         documented = documented_tables(text)
-        assert set(documented) == {"sessions", "rounds", "steps"}
+        tables = {
+            name
+            for (name,) in db.execute("SELECT name FROM sqlite_master WHERE type = 'table'")
+            if not name.startswith("sqlite_")
+        }
+        assert set(documented) == tables
         for table, (columns, _) in documented.items():
             actual = [row[1] for row in db.execute(f"PRAGMA table_info({table})")]
             assert columns == actual, table
         assert documented["sessions"][1] >= SESSION_STATUSES | {"open"}
         assert documented["rounds"][1] >= ROUND_STATUSES | {"open"}
+        assert documented["jobs"][1] >= JOB_STATUSES
         assert db.execute("PRAGMA user_version").fetchone()[0] == SCHEMA_VERSION
     finally:
         db.close()
