@@ -32,6 +32,7 @@ VARYING = [
     (re.compile(r"\(\d+\.\d+ s\)$"), "(S s)"),  # a session's seconds
     (re.compile(r"^steps per second\s+\d+$"), "steps per second  N"),
     (re.compile(r'"steps_per_second": [0-9.e+-]+'), '"steps_per_second": N'),
+    (re.compile(r"planning \d+\.\d+ s"), "planning S s"),  # rddl-dispatch's planner time
 ]
 
 
@@ -55,6 +56,7 @@ CONSOLE: dict[tuple[str, str], Console] = {
     ("docs/cli.md", "rddl-client --port 2323 --instance print_fetch_inst_1"): Console(
         "client", ("domains/", "--rounds", "3")
     ),
+    ("docs/robot.md", "rddl-dispatch tests/data/dispatch/courier_domain.rddl"): Console(),
 }
 
 
