@@ -16,11 +16,29 @@ from __future__ import annotations
 
 from .goal import Goal, GoalFact
 from .knowledge_base import KnowledgeBase, Subscriber
+from .operators import (
+    EXOGENOUS,
+    Atom,
+    Effect,
+    Operator,
+    Outcome,
+    Parameter,
+    ProbabilisticEffect,
+    parameter_names,
+)
 from .report import Unsupported
 from .store import Change, KBError, Update, Value
 
 __all__ = [
+    "EXOGENOUS",
+    "Atom",
     "Change",
+    "Effect",
+    "Operator",
+    "Outcome",
+    "Parameter",
+    "ProbabilisticEffect",
+    "parameter_names",
     "Goal",
     "GoalFact",
     "KBError",

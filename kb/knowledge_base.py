@@ -22,14 +22,19 @@ import logging
 import threading
 from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from ..rddl.loader import load_pair
-from ..rddl.model import ACTION, NON_FLUENT, STATE, GroundKey, Model, Value
+from ..rddl.model import ACTION, NON_FLUENT, STATE, GroundKey, Model, PVariable, Value
 from ..rddl.simulator import SimulationError, Simulator, State
+from ..rddl.writer import write_expr
 from .evaluate import Evaluator, NotEvaluable
 from .goal import Goal, GoalSource, find_goal, ground_goal
+from .metric import expression_tree
+from .operators import Operator, Parameter, parameter_names, translate
+from .report import Unsupported
 from .store import Change, KBError, Store, Update
 
 log = logging.getLogger(__name__)
@@ -53,6 +58,9 @@ class KnowledgeBase:
         self._goal_source: GoalSource | None = find_goal(model)
         self._goal: Goal | None = None  # grounded on first use, again after non-fluents change
         self._simulator: Simulator | None = None  # built on first use, for R(s, a)
+        self._operators, self._unsupported = translate(model)
+        for u in self._unsupported:
+            log.info("%s: not in operator form: %s", model.domain_name, u)
 
     # ---------------------------------------------------------------- loading
 
@@ -67,6 +75,109 @@ class KnowledgeBase:
     def from_model(cls, model: Model) -> KnowledgeBase:
         """A knowledge base whose state starts at the model's initial state."""
         return cls(model)
+
+    # ------------------------------------------------------- domain queries
+
+    def domain_name(self) -> str:
+        """The RDDL domain's name (ROSPlan's domain/name)."""
+        return self.model.domain_name
+
+    def types(self) -> list[dict[str, Any]]:
+        """Every object and enum type with its super-type (ROSPlan's
+        domain/types): {name, supertype ("object" at the top), kind, values
+        (an enum's)}."""
+        out = []
+        for t in self.model.types.values():
+            entry: dict[str, Any] = {
+                "name": t.name,
+                "supertype": t.parent or "object",
+                "kind": t.kind,
+            }
+            if t.kind == "enum":
+                entry["values"] = list(t.members)
+            out.append(entry)
+        return out
+
+    def _signature(self, p: PVariable) -> dict[str, Any]:
+        params = [
+            Parameter(k, t).to_json()
+            for k, t in zip(parameter_names(p.params), p.params, strict=True)
+        ]
+        return {
+            "name": p.name,
+            "parameters": params,
+            "kind": p.kind,
+            "type": p.range,
+            "is_sensed": p.name in self._sensed,
+        }
+
+    def predicates(self) -> list[dict[str, Any]]:
+        """Boolean state fluents and non-fluents with typed parameters and
+        their sensed flag (ROSPlan's domain/predicates and predicate_details);
+        `kind` tells a state fluent from a non-fluent, which ROSPlan lost."""
+        with self._lock:
+            return [self._signature(p) for p in self._store.pvars.values() if p.range == "bool"]
+
+    def functions(self) -> list[dict[str, Any]]:
+        """Numeric and enum state fluents and non-fluents (domain/functions)."""
+        with self._lock:
+            return [self._signature(p) for p in self._store.pvars.values() if p.range != "bool"]
+
+    def fluent_type(self, fluent: str) -> str:
+        """The value type of a pvariable: bool, int, real or a type name."""
+        p = self.model.pvariables.get(fluent)
+        if p is None:
+            raise KBError(f"unknown fluent '{fluent}'", "unknown-fluent")
+        return p.range
+
+    def operators(self) -> list[Operator]:
+        """One operator per action fluent, then the virtual `exogenous`
+        operator (ROSPlan's domain/operators)."""
+        return list(self._operators)
+
+    def operator(self, name: str) -> Operator:
+        """The operator of one action fluent, or `exogenous`
+        (ROSPlan's domain/operator_details)."""
+        for op in self._operators:
+            if op.name == name:
+                return op
+        names = ", ".join(o.name for o in self._operators)
+        raise KBError(f"no operator '{name}' (operators: {names})", "unknown-operator")
+
+    def unsupported(self) -> list[Unsupported]:
+        """Every part of the domain that the operators and the goal leave
+        out, by construct and line (the planner still gets all of it)."""
+        goal = self.goal()
+        return [*self._unsupported, *(goal.unsupported if goal is not None else ())]
+
+    def metric(self) -> dict[str, Any]:
+        """The reward as the metric, maximised (ROSPlan's state/metric): its
+        RDDL text and its expression tree with RDDL's own operators."""
+        reward = self.model.reward
+        return {
+            "optimization": "maximize",
+            "expression": None if reward is None else write_expr(reward),
+            "tree": None if reward is None else expression_tree(reward),
+        }
+
+    def instances(self, type_name: str | None = None) -> list[str] | dict[str, list[str]]:
+        """The objects of a type (its subtypes' included), or of every
+        object type by name (ROSPlan's state/instances)."""
+        if type_name is None:
+            return {
+                t.name: list(t.members) for t in self.model.types.values() if t.kind == "object"
+            }
+        info = self.model.types.get(type_name)
+        if info is None or info.kind != "object":
+            raise KBError(f"no object type '{type_name}'", "unknown-type")
+        return list(info.members)
+
+    def enum_values(self, type_name: str) -> list[str]:
+        """The values of an enum type, "@name" (ROSPlan's domain/enumerable_type)."""
+        info = self.model.types.get(type_name)
+        if info is None or info.kind != "enum":
+            raise KBError(f"no enum type '{type_name}'", "unknown-type")
+        return list(info.members)
 
     # ------------------------------------------------------------------ state
 
@@ -365,3 +476,6 @@ class KnowledgeBase:
 
     def __repr__(self) -> str:
         return f"KnowledgeBase({self.model.name!r}, domain={self.model.domain_name!r})"
+
+
+__all__ = ["KnowledgeBase", "Subscriber"]

@@ -73,6 +73,66 @@ def register_kb(server: JsonlServer, kb: KnowledgeBase) -> None:
 
         return deco
 
+    # -- domain
+
+    @method("kb.domain_name")
+    def domain_name(params: dict[str, Any], conn: Connection) -> Any:
+        """the domain's name"""
+        return kb.domain_name()
+
+    @method("kb.types")
+    def types(params: dict[str, Any], conn: Connection) -> Any:
+        """object and enum types with their super-types"""
+        return kb.types()
+
+    @method("kb.predicates")
+    def predicates(params: dict[str, Any], conn: Connection) -> Any:
+        """bool state fluents and non-fluents with typed parameters and sensed flags"""
+        return kb.predicates()
+
+    @method("kb.functions")
+    def functions(params: dict[str, Any], conn: Connection) -> Any:
+        """numeric and enum state fluents and non-fluents"""
+        return kb.functions()
+
+    @method("kb.fluent_type")
+    def fluent_type(params: dict[str, Any], conn: Connection) -> Any:
+        """the value type of a fluent: {fluent}"""
+        return kb.fluent_type(_param(params, "fluent", str))
+
+    @method("kb.operators")
+    def operators(params: dict[str, Any], conn: Connection) -> Any:
+        """the operators' names and parameters (exogenous last)"""
+        return [
+            {"name": o.name, "parameters": [p.to_json() for p in o.parameters]}
+            for o in kb.operators()
+        ]
+
+    @method("kb.operator")
+    def operator(params: dict[str, Any], conn: Connection) -> Any:
+        """one operator in full: {name}"""
+        return kb.operator(_param(params, "name", str)).to_json()
+
+    @method("kb.unsupported")
+    def unsupported(params: dict[str, Any], conn: Connection) -> Any:
+        """what the operators and the goal leave out, by construct and line"""
+        return [u.to_json() for u in kb.unsupported()]
+
+    @method("kb.metric")
+    def metric(params: dict[str, Any], conn: Connection) -> Any:
+        """the reward, maximised: its RDDL text and expression tree"""
+        return kb.metric()
+
+    @method("kb.instances")
+    def instances(params: dict[str, Any], conn: Connection) -> Any:
+        """the objects of a type, or of every type: {type?}"""
+        return kb.instances(_param(params, "type", str, None))
+
+    @method("kb.enum_values")
+    def enum_values(params: dict[str, Any], conn: Connection) -> Any:
+        """the values of an enum type: {type}"""
+        return kb.enum_values(_param(params, "type", str))
+
     # -- state
 
     @method("kb.get")
