@@ -128,12 +128,9 @@ class WireCodec:
             a.flags.writeable = False  # shared by every noop turn
 
     def _layout(self, p: PVariable) -> _Layout:
-        members = [self.model.types[t].members for t in p.params]
-        args: list[tuple[str, ...]] = [()]
-        for m in members:
-            args = [a + (x,) for a in args for x in m]
+        args = tuple(names for names, _ in self.sim._ground(p))
         labels = self.model.types[p.range].members if p.range in self.model.types else None
-        return _Layout(p, tuple(args), labels)
+        return _Layout(p, args, labels)
 
     # -- server side: tensors -> wire
 
@@ -197,7 +194,7 @@ class WireCodec:
         without effect (wrong arity, unknown object)."""
         if len(args) != p.arity:
             return None
-        codes = self.sim._c.codes
+        codes = self.sim._compiler.codes
         idx = []
         for t, a in zip(p.params, args, strict=True):
             a = a if a.startswith("@") else a.removeprefix("$")
@@ -208,7 +205,7 @@ class WireCodec:
         return tuple(idx)
 
     def _code(self, p: PVariable, value: Value) -> Value:
-        codes = self.sim._c.codes
+        codes = self.sim._compiler.codes
         if p.range in codes:
             text = str(value)
             if not text.startswith("@") and value_kind(self.model, p) == "object":
@@ -225,28 +222,27 @@ class WireCodec:
         """A batch-1 state from typed wire fluents; fluents not listed keep
         the instance's initial value."""
         state = self.sim.initial_state(1)
-        for name, args, value in fluents:
-            p = self._by_name.get(name)
-            if p is None or p.kind != STATE:
-                raise WireError(f"'{name}' is not a state fluent of {self.model.name}")
-            idx = self._index(p, tuple(args))
-            if idx is None:
-                raise WireError(f"'{name}({','.join(args)})': unknown grounding")
-            state.values[name][(0, *idx)] = self._code(p, value)
+        self._fill(state.values, fluents, STATE, "a state fluent")
         return state
 
     def observation_from(self, fluents: Iterable[WireFluent]) -> dict[str, np.ndarray]:
         """Batch-1 observ-fluent arrays (defaults where not listed)."""
         out = {p.name: self.sim._default_array(p)[None].copy() for p in self.sim.observ_fluents}
+        self._fill(out, fluents, OBSERV, "an observ fluent")
+        return out
+
+    def _fill(
+        self, arrays: dict[str, np.ndarray], fluents: Iterable[WireFluent], kind: str, what: str
+    ) -> None:
+        """Write typed wire fluents of `kind` into batch-1 `arrays`."""
         for name, args, value in fluents:
             p = self._by_name.get(name)
-            if p is None or p.kind != OBSERV:
-                raise WireError(f"'{name}' is not an observ fluent of {self.model.name}")
+            if p is None or p.kind != kind:
+                raise WireError(f"'{name}' is not {what} of {self.model.name}")
             idx = self._index(p, tuple(args))
             if idx is None:
                 raise WireError(f"'{name}({','.join(args)})': unknown grounding")
-            out[name][(0, *idx)] = self._code(p, value)
-        return out
+            arrays[name][(0, *idx)] = self._code(p, value)
 
     def actions_from(self, fluents: Iterable[WireFluent]) -> DecodedActions:
         """Batch-1 action arrays from typed wire actions, as rddlsim's server
@@ -302,9 +298,7 @@ class WireCodec:
         if not self.sim._preconditions:
             return None
         try:
-            self.sim._check_preconditions(
-                self.sim._env(state, decoded.arrays, None), decoded.arrays, 1
-            )
+            self.sim._check_preconditions(state, decoded.arrays)
         except SimulationError as err:
             return str(err)
         return None

@@ -75,6 +75,75 @@ current state and actions before the step, max-nondef-actions counts the
 actions that differ from their default, and state-invariants are checked on
 the next state. `termination` (pyRDDLGym) ends an episode when it holds.
 
+The generated code, once. This two-computer SysAdmin (in `mini.rddl`;
+`tests/rddl/test_sim_docstring.py` checks that the compiler writes exactly
+what is shown here)
+
+    domain mini {
+        types { computer : object; };
+        pvariables {
+            CONNECTED(computer, computer) : { non-fluent, bool, default = false };
+            running(computer) : { state-fluent, bool, default = true };
+            reboot(computer) : { action-fluent, bool, default = false };
+        };
+        cpfs {
+            running'(?c) = if (reboot(?c)) then true
+                else Bernoulli(0.5 + 0.2 * sum_{?d : computer} [CONNECTED(?d, ?c) ^ running(?d)]);
+        };
+        reward = sum_{?c : computer} [running(?c) - reboot(?c)];
+    }
+    non-fluents mini_nf {
+        domain = mini;
+        objects { computer : {c1, c2}; };
+        non-fluents { CONNECTED(c1, c2); CONNECTED(c2, c1); };
+    }
+    instance mini_1 {
+        domain = mini;
+        non-fluents = mini_nf;
+        max-nondef-actions = 1;
+        horizon = 10;
+        discount = 1.0;
+    }
+
+steps batches of 2 to 15 states with this function (`Simulator.source()`):
+
+    def _step(S, A, B, rng, check):
+        a0 = A['reboot'].T
+        s0 = S['running'].T
+        if rng is None:
+            _no_rng('mini.rddl:10:18: Bernoulli')
+        _u = _uniforms(rng, 2 * B)
+        u1 = _u[0 * B:2 * B].reshape((2, B))
+        if check:
+            if _cnz(a0) > 1:
+                k2(A, B)
+        t2 = _matmul(k9, s0.reshape(2, -1).astype(_f64, copy=False))
+        t3 = _mul(k8, t2)
+        t4 = _add(k6, t3)
+        t5 = _mul(t4, k10)
+        t6 = _lt(u1, t5)
+        t7 = _lor(a0, t6)
+        t8 = s0[0, :].astype(_i64) + s0[1, :]
+        t9 = a0[0, :].astype(_i64) + a0[1, :]
+        t10 = _sub(t8, t9)
+        t11 = t10.astype(_f64)
+        done = _zeros(B, _bool)
+        return {'running': t7.T}, t11, None, done
+
+`S` and `A` map fluent names to batch-first arrays, `B` is the batch size:
+the inputs are read as batch-last views (`.T`); the uniforms of every
+Bernoulli are drawn first, one slot each (`u1`: one per computer and
+state); max-nondef-actions is checked over the whole batch, and `k2` (the
+simulator's `_fail_nondef`) finds the state that breaks it. The sum over
+`?d` of `CONNECTED(?d, ?c) ^ running(?d)` is a matrix product with the
+constant CONNECTED (`k9`), 0.5 and 0.2 are the constants `k6` and `k8`,
+and the Bernoulli is `u1 < p * 2**32` (`k10` = 2**32). The
+`if` with a `true` branch is one `_lor`; the reward's sum over a short
+axis adds its two slices. The `k`s are constants of the generated code's
+namespace (`runtime._BUILTINS` names the rest), and the `t`s its
+temporaries. Batches of 16 states or more step with `_step_large`, one
+state with `_step_one`: the same draws and values, laid out for speed.
+
 The package, one job per module (each module's docstring says what it owns
 and what it may call):
 

@@ -23,12 +23,10 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ..model import PVariable
-from .state import SimulationError, State
+from .state import Array, SimulationError, State
 
 if TYPE_CHECKING:
     from .simulator import Simulator
-
-Array = np.ndarray
 
 
 _WINDOW = 32  # candidates per state tested in one batched call in random_actions
@@ -71,8 +69,8 @@ def _random_value(sim: Simulator, p: PVariable, rng: np.random.Generator, n: int
     default = sim._encode(p, sim.model.default_of(p))
     if p.range == "bool":
         return np.full(n, not default)
-    if p.range in sim._c.codes:
-        size = len(sim._c.codes[p.range])
+    if p.range in sim._compiler.codes:
+        size = len(sim._compiler.codes[p.range])
         if size < 2:
             return np.full(n, default)
         draw = rng.integers(0, size - 1, n)

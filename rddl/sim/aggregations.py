@@ -30,9 +30,7 @@ from .bounds import Bounds, _bounded, _bounds_mul
 from .code import _DTYPES, _LARGE_BATCH, Scope, _axis_code, _Node, _tuple_code
 from .operators import _Operators
 from .runtime import _BLAS_BLOCK
-from .state import SimulationError
-
-Array = np.ndarray
+from .state import Array, SimulationError
 
 _SPARSE_MAX = 12  # row gathers, at most, instead of a matrix product in a contraction
 

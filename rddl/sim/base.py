@@ -42,11 +42,9 @@ from .code import (
     _Node,
 )
 from .runtime import _BUILTINS, _SPREAD_CELLS, _action_in_factory, _bidx_factory, _spread_factory
-from .state import SimulationError
+from .state import Array, SimulationError
 
 log = logging.getLogger("ippc.rddl.simulator")
-
-Array = np.ndarray
 
 
 def _broadcasts_to(shape: tuple[int, ...], target: tuple[int, ...]) -> bool:
@@ -108,7 +106,7 @@ class _CompilerBase:
         self.ns["_action_in"] = _action_in_factory()
         self.ns["_spread"] = _spread_factory()
         self._consts: dict[Any, _Node] = {}
-        self._aux_count = 0
+        self._global_count = 0
         self._tables: dict[str, str] = {}
         self._random: dict[int, tuple[A.Expr, bool]] = {}
         self._free: dict[int, tuple[A.Expr, frozenset[str]]] = {}
@@ -145,10 +143,11 @@ class _CompilerBase:
             raise SimulationError(f"unknown object or enum value '{name}'")
         return self.codes[owner][name], owner
 
-    def aux(self, value: Any) -> str:
-        """A name for `value` in the generated code's globals."""
-        self._aux_count += 1
-        name = f"k{self._aux_count}"
+    def global_name(self, value: Any) -> str:
+        """A name (`k1`, `k2`...) for `value` in the generated code's globals
+        (a constant array, made read-only, or a function it calls)."""
+        self._global_count += 1
+        name = f"k{self._global_count}"
         if isinstance(value, np.ndarray):
             value.flags.writeable = False
         self.ns[name] = value
@@ -163,7 +162,7 @@ class _CompilerBase:
             hit = self._consts.get(key)
             if hit is not None:
                 return hit
-        node = _Node(self.aux(arr), arr.shape, arr.dtype, rtype, False, value=arr)
+        node = _Node(self.global_name(arr), arr.shape, arr.dtype, rtype, False, value=arr)
         if key is not None:
             self._consts[key] = node
         return node
@@ -477,7 +476,7 @@ class _CompilerBase:
         if self.large and a.dtype == b.dtype == np.bool_ and (a.value is None) != (b.value is None):
             const, other = (a, b) if a.value is not None else (b, a)
             assert const.value is not None
-            u8 = self.aux(const.value.view(np.uint8))
+            u8 = self.global_name(const.value.view(np.uint8))
             bit = "_bitand" if ufunc == "_land" else "_bitor"
             return self.op(f"{bit}({{0}}.view(_u8), {u8}).view(_bool)", [other], rtype)
         return self.op(f"{ufunc}({{0}}, {{1}})", [a, b], rtype)
@@ -514,12 +513,12 @@ class _CompilerBase:
 
     def table(self, t: str) -> str:
         if t not in self._tables:
-            self._tables[t] = self.aux(self.numeric_of_code[t])
+            self._tables[t] = self.global_name(self.numeric_of_code[t])
         return self._tables[t]
 
     def fail(self, func: Callable[..., None], *args: str) -> None:
         """A statement that calls `func` (which raises) with values by name."""
-        self.code.emit(f"{self.aux(func)}({', '.join(args)})")
+        self.code.emit(f"{self.global_name(func)}({', '.join(args)})")
 
     # -- what an expression depends on --------------------------------
 

@@ -14,8 +14,7 @@ from __future__ import annotations
 import numpy as np
 
 from .code import _Node
-
-Array = np.ndarray
+from .state import Array
 
 Bounds = tuple[Array, Array]
 

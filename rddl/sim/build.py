@@ -11,7 +11,7 @@ alone (the mask of the legal states, or the raise of the first violation).
 (the non-fluents' constants; the state `S` and actions `A`, read batch
 last) and `_output` makes each returned value an array of its own.
 
-May call the compiler (`compiler._Compiler`, as `sim._c`) and `code`;
+May call the compiler (`compiler._Compiler`, as `sim._compiler`) and `code`;
 `simulator` calls it once per function, when the function is first needed.
 """
 
@@ -33,7 +33,7 @@ def _bind(sim: Simulator, state: Mapping[str, _Node] | None = None) -> None:
     """What pvariable names mean in the function being written: the
     non-fluents' values, the state (`S`, or the given next state) and
     the actions (`A`)."""
-    c = sim._c
+    c = sim._compiler
     c.context += 1
     c.values = dict(sim._nf_nodes)
 
@@ -68,7 +68,7 @@ def _output(
     """`node` as an array of its own, shaped (*shape, B): the value
     itself where this step allocated it and nothing else returns it,
     else a copy."""
-    c = sim._c
+    c = sim._compiler
     dtype = np.dtype(dtype)
     full = (*shape, 1)
     if (
@@ -99,7 +99,7 @@ def _output(
 def _emit_constraints(sim: Simulator) -> None:
     """Statements that raise `SimulationError` for the first violated
     constraint: max-nondef-actions, then the preconditions in order."""
-    c = sim._c
+    c = sim._compiler
     limit = sim.model.max_nondef_actions
     if limit is not None and sim.action_fluents:
         terms = []
@@ -109,7 +109,7 @@ def _emit_constraints(sim: Simulator) -> None:
             if p.range == "bool" and not d.any():
                 terms.append(f"_cnz({a.code})")
             else:
-                terms.append(f"_cnz(_ne({a.code}, {c.aux(d[..., None])}))")
+                terms.append(f"_cnz(_ne({a.code}, {c.global_name(d[..., None])}))")
         # the total over the batch bounds each state's count
         with c.code.block(f"if {' + '.join(terms)} > {limit}:"):
             c.fail(sim._fail_nondef, "A", "B")
@@ -124,7 +124,7 @@ def _emit_constraints(sim: Simulator) -> None:
 
 
 def build_step(sim: Simulator, large: bool, one: bool = False) -> Callable[..., Any]:
-    c = sim._c
+    c = sim._compiler
     model = sim.model
     name = "_step_large" if large else "_step_one" if one else "_step"
     code = c.begin(name, "S, A, B, rng, check", large, one)
@@ -200,7 +200,7 @@ def build_constraints(
     """`explain`: a function that raises for the first violated
     constraint (max-nondef-actions included); else one that returns
     the mask of the states where every precondition holds."""
-    c = sim._c
+    c = sim._compiler
     code = c.begin(name, "S, A, B", large)
     _bind(sim)
     if explain:

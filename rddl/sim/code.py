@@ -6,7 +6,7 @@ slots of its Bernoulli draws), `_Node` (what the compiler knows about one
 value of that function), the peephole passes `_Code.source` runs on the
 statements (`_drop_unused`; for large batches `_in_place` and
 `_free_dead`), and the small helpers that write shapes, axes and
-transpositions as code text. Imports numpy and `rddl.ast` only: the
+transpositions as code text. Imports numpy and `state` only: the
 compiler (`base`, `operators`, ...) and `build` write into a `_Code`; this
 module calls none of them.
 """
@@ -23,8 +23,7 @@ from typing import Any
 
 import numpy as np
 
-Array = np.ndarray
-
+from .state import Array
 
 Scope = tuple[tuple[str, str], ...]  # ((var, type), ...)
 
@@ -74,7 +73,7 @@ class _Code:
         self.name = name
         self.params = params
         self.large = large
-        self.one = one  # for a batch of exactly one (see `_Compiler._widen_constant`)
+        self.one = one  # for a batch of exactly one (see `base._widen_constant`)
         self.inputs: dict[str, str] = {}  # local name -> expression reading it
         self.lines: list[str] = []
         self.depth = 1
@@ -82,7 +81,7 @@ class _Code:
         self.count = 0
         self.draws: list[str] = []  # where each draw is, in order
         # uniform slots, in the order of the block of random bits; the
-        # innermost branch's pool last (see `_Compiler.alternatives`)
+        # innermost branch's pool last (see `operators.alternatives`)
         self.slots: list[_Slot] = []
         self.pools: list[_Pool] = [_Pool()]
         # constants repeated along the batch: (constant, shape) -> local name

@@ -30,15 +30,11 @@ from .samplers import (
     _param_error,
     _sampler,
 )
-from .state import SimulationError
-
-Array = np.ndarray
+from .state import Array, SimulationError
 
 
 class _Distributions(_CompilerBase):
     """The compiler's methods for random draws (see the module's docstring)."""
-
-    # -- distributions -----------------------------------------------
 
     def _Distribution(self, e: A.Distribution, scope: Scope, hint: str | None) -> _Node:
         name = e.name
@@ -93,7 +89,10 @@ class _Distributions(_CompilerBase):
         args = ", ".join(p.code + first for p in params)
         dtype = np.int64 if out == "int" else np.float64
         return self.emit_value(
-            self.batch_last(f"{self.aux(draw)}(rng, {shape}, {args})", rank), (*full, 1), dtype, out
+            self.batch_last(f"{self.global_name(draw)}(rng, {shape}, {args})", rank),
+            (*full, 1),
+            dtype,
+            out,
         )
 
     def _bernoulli(self, p: _Node, full: tuple[int, ...], where: str) -> _Node:
@@ -127,12 +126,12 @@ class _Distributions(_CompilerBase):
             cmp, k = "_le", (limit - 1).astype(np.uint32)
         else:
             cmp, k = "_lt", scaled
-        name = self.aux(k)
+        name = self.global_name(k)
         if self.large and k.size and k.ndim == rank:
             # (as `_spread_constant` does for other operations)
             flat = k.reshape(-1)
             if (flat == flat[0]).all():
-                name = self.aux(flat[:1].reshape((1,) * rank))
+                name = self.global_name(flat[:1].reshape((1,) * rank))
             elif int(np.prod(full, dtype=np.int64)) <= _SPREAD_CELLS:
                 name = self.spread(name, (*full, 1))
         return self.emit_value(f"{cmp}({u}, {name})", (*full, 1), np.bool_, "bool")
@@ -183,13 +182,13 @@ class _Distributions(_CompilerBase):
             if fixed is not None:
                 cum, total = fixed
                 k = cum.shape[-1]
-                table = "" if np.array_equal(codes, np.arange(k)) else self.aux(codes)
+                table = "" if np.array_equal(codes, np.arange(k)) else self.global_name(codes)
                 flat = cum.reshape(-1, k)
                 if (flat == flat[0]).all() and (np.diff(flat[0]) >= 0).all():
                     # the same distribution everywhere: a sorted search
-                    idx = f"_searchsorted({self.aux(flat[0].copy())}, rng.random({shape}) * {self.aux(total.reshape(-1)[0].copy())}, 'right')"
+                    idx = f"_searchsorted({self.global_name(flat[0].copy())}, rng.random({shape}) * {self.global_name(total.reshape(-1)[0].copy())}, 'right')"
                 else:
-                    idx = f"_sum({self.aux(cum)} <= rng.random({shape})[..., None] * {self.aux(total)}, -1)"
+                    idx = f"_sum({self.global_name(cum)} <= rng.random({shape})[..., None] * {self.global_name(total)}, -1)"
                 text = f"_minimum({idx}, {k - 1})"
                 if table:
                     text = f"{table}[{text}]"
@@ -197,7 +196,10 @@ class _Distributions(_CompilerBase):
         sampler = _discrete_sampler(codes, normalise, where, draw_shape)
         args = ", ".join("None" if p is None else p.code + to_first for p in probs)
         return self.emit_value(
-            self.batch_last(f"{self.aux(sampler)}(rng, B, [{args}])", rank), out_shape, np.int64, t
+            self.batch_last(f"{self.global_name(sampler)}(rng, B, [{args}])", rank),
+            out_shape,
+            np.int64,
+            t,
         )
 
     def _DiscreteOver(self, e: A.DiscreteOver, scope: Scope, hint: str | None) -> _Node:
@@ -212,6 +214,7 @@ class _Distributions(_CompilerBase):
         self.code.draws.append(where)
         # the weights batch first, the variable's axis last, as the draws are made
         text = self.batch_last(
-            f"{self.aux(sampler)}(rng, B, {w.code}{_batch_first(len(full) + 2)})", len(full) + 1
+            f"{self.global_name(sampler)}(rng, B, {w.code}{_batch_first(len(full) + 2)})",
+            len(full) + 1,
         )
         return self.emit_value(text, (*full, 1), np.int64, e.params[0].type)

@@ -106,7 +106,7 @@ class _Operators(_CompilerBase):
             # read before it is computed (or where it has no value): rddlsim
             # has no value to give either
             node = self.emit_value(
-                f"{self.aux(_missing)}({key!r})",
+                f"{self.global_name(_missing)}({key!r})",
                 (*self.shape_of(p), 1),
                 _DTYPES.get(p.range, np.int64),
                 p.range,
@@ -171,7 +171,7 @@ class _Operators(_CompilerBase):
         if base.batched:
             b = f"_bidx(B, {rank})"
         else:
-            b = self.aux(np.zeros((1,) * rank, dtype=np.int64))
+            b = self.global_name(np.zeros((1,) * rank, dtype=np.int64))
         parts = ", ".join([f"{{{i + 1}}}" for i in range(len(indices))] + [b])
         return self.op("{0}[(" + parts + ")]", [base, *indices], p.range)
 

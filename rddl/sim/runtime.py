@@ -20,9 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from .state import SimulationError
-
-Array = np.ndarray
+from .state import Array, SimulationError
 
 
 def _bidx_factory() -> Callable[[int, int], Array]:
@@ -68,7 +66,7 @@ def _action_in_factory() -> Callable[[Array, tuple[int, ...]], Array]:
 
 
 # the largest constant (in elements per state) repeated along the batch for
-# large batches (see `_Compiler._spread_constant`), and the largest such
+# large batches (see `base._spread_constant`), and the largest such
 # array (in bytes) made at run time: beyond the caches a second array costs
 # more memory traffic than broadcasting saves
 _SPREAD_CELLS = 4096
@@ -143,7 +141,7 @@ def _uniforms(rng: np.random.Generator, n: int) -> Array:
     outputs of `rng`'s bit generator, each cut in two (its low half
     first on a little-endian machine). Half the bits of `rng.random()`'s
     53-bit doubles, twice as many numbers per output, and no conversion:
-    plenty for a Bernoulli (see `_Compiler._Distribution`)."""
+    plenty for a Bernoulli (see `distributions._bernoulli`)."""
     return rng.bit_generator.random_raw((n + 1) >> 1).view(np.uint32)  # type: ignore[no-any-return]
 
 

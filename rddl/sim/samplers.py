@@ -17,9 +17,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from .state import SimulationError
-
-Array = np.ndarray
+from .state import Array, SimulationError
 
 
 def _param_error(where: str, what: str, bad: Callable[[Array], Array]) -> Callable[[Array], None]:

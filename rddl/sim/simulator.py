@@ -32,9 +32,7 @@ from .compiler import _Compiler
 from .order import _order_cpfs
 from .prestep import POST_NAME, PRE_NAME, split_step_source
 from .runtime import _quietly
-from .state import Prepared, SimulationError, State, Step, _Env, _make_step
-
-Array = np.ndarray
+from .state import Array, Prepared, SimulationError, State, Step, _make_step
 
 _UNBUILT = object()
 
@@ -56,7 +54,7 @@ class Simulator:
 
     def __init__(self, model: Model):
         self.model = model
-        self._c = _Compiler(model)
+        self._compiler = _Compiler(model)
         self.state_fluents = model.fluents(STATE)
         self.action_fluents = model.fluents(ACTION)
         self.observ_fluents = model.fluents(OBSERV)
@@ -79,7 +77,7 @@ class Simulator:
         self._invariants = list(dom.state_invariants)
         self._terminations = list(dom.termination)
         self._nf_nodes = {
-            p.name: (self._c.const(self._nf_values[p.name][0][..., None], p.range), None)
+            p.name: (self._compiler.const(self._nf_values[p.name][0][..., None], p.range), None)
             for p in self.non_fluents
         }
         self._lock = threading.Lock()  # the compiler is not reentrant
@@ -94,12 +92,12 @@ class Simulator:
         return _DTYPES.get(p.range, np.int64)
 
     def _encode(self, p: PVariable, value: Value) -> Any:
-        if p.range in self._c.codes:
-            return self._c.codes[p.range][value]  # type: ignore[index]
+        if p.range in self._compiler.codes:
+            return self._compiler.codes[p.range][value]  # type: ignore[index]
         return value
 
     def _default_array(self, p: PVariable) -> Array:
-        shape = self._c.shape_of(p)
+        shape = self._compiler.shape_of(p)
         return np.full(shape, self._encode(p, self.model.default_of(p)), dtype=self._dtype(p))
 
     def _initial_array(self, p: PVariable) -> Array:
@@ -107,7 +105,7 @@ class Simulator:
         values = self.model.non_fluent_values if p.kind == NON_FLUENT else self.model.init_state
         for (name, args), value in values.items():
             if name == p.name:
-                idx = tuple(self._c.codes[t][a] for t, a in zip(p.params, args, strict=True))
+                idx = tuple(self._compiler.codes[t][a] for t, a in zip(p.params, args, strict=True))
                 arr[idx] = self._encode(p, value)
         return arr
 
@@ -161,7 +159,7 @@ class Simulator:
 
     def source(self) -> str:
         """The generated code of the step, for reading (and debugging)."""
-        return "\n".join(self._c.sources.values())
+        return "\n".join(self._compiler.sources.values())
 
     # -- failures (called from the generated code) ---------------------
 
@@ -224,11 +222,6 @@ class Simulator:
             out[name] = a
         return out
 
-    def _env(
-        self, state: State, actions: Mapping[str, Array], rng: np.random.Generator | None
-    ) -> _Env:
-        return _Env(state, actions, rng, state.batch)
-
     def count_nondefault(self, actions: Mapping[str, Array], batch: int) -> Array:
         """How many grounded actions differ from their default, per state."""
         n = np.zeros(batch, dtype=np.int64)
@@ -269,6 +262,8 @@ class Simulator:
         for v in values.values():
             batch = v.shape[0]
             break
+        # (`_step_fn` and `State.batch` written out: a small step is a few
+        # microseconds, and each call costs a measurable part of it)
         if batch == 1:
             fn = self._step_one or self._function("_step_one")
         elif batch < _LARGE_BATCH:
@@ -288,12 +283,12 @@ class Simulator:
                 got = self._compiled.get("_split_one", _UNBUILT)
                 if got is _UNBUILT:
                     got = None
-                    split = split_step_source(self._c.sources["_step_one"])
+                    split = split_step_source(self._compiler.sources["_step_one"])
                     if split is not None:
                         pre_src, post_src, _ = split
                         got = (
-                            self._c.define(PRE_NAME, pre_src),
-                            self._c.define(POST_NAME, post_src),
+                            self._compiler.define(PRE_NAME, pre_src),
+                            self._compiler.define(POST_NAME, post_src),
                         )
                     self._compiled["_split_one"] = got
         return got  # type: ignore[no-any-return]
@@ -346,34 +341,31 @@ class Simulator:
         will not happen (so the next step draws what it would have drawn)."""
         rng.bit_generator.state = prepared.rng_state
 
-    def _check_preconditions(self, env: _Env, actions: Mapping[str, Array], batch: int) -> None:
+    def _check_preconditions(self, state: State, actions: Mapping[str, Array]) -> None:
         """Raise `SimulationError` for the first constraint the actions
-        violate (max-nondef-actions, then the preconditions in order)."""
-        _quietly(self._function("_check"), env.state.values, self._actions(actions, batch), batch)
+        violate in the states of `state` (max-nondef-actions, then the
+        preconditions in order)."""
+        batch = state.batch
+        _quietly(self._function("_check"), state.values, self._actions(actions, batch), batch)
 
     # -- action choice (see `actions`) --------------------------------
 
     def random_actions(self, state: State, rng: np.random.Generator) -> dict[str, Array]:
         """Random legal actions for every state of the batch, as rddlsim's
-        RandomConcurrentPolicy picks them: each action fluent in turn, its
-        groundings in a random order; each grounding is taken with
-        probability 1/2 (with a random non-default value) and kept only if
-        the constraints and max-nondef-actions still hold; at most
-        max-nondef-actions are taken, and (as rddlsim's policy does, for
-        max-nondef-actions = pos-inf) at most `RANDOM_MAX_CONCURRENT`."""
+        RandomConcurrentPolicy picks them (at most max-nondef-actions and
+        `RANDOM_MAX_CONCURRENT`; see `sim.actions.random_actions`)."""
         return random_actions(self, state, rng)
 
     def legal_actions(self, state: State, index: int = 0, limit: int = 100_000) -> dict[str, Array]:
-        """Every legal joint action of a boolean action space in one state,
-        stacked along the batch axis (noop first when legal): all sets of at
-        most max-nondef-actions groundings set to their non-default value,
-        filtered by the preconditions. Raises if there are more than `limit`."""
+        """Every legal joint action of a boolean action space in the state
+        at `index`, stacked along the batch axis, noop first when legal (at
+        most `limit` candidates; see `sim.actions.legal_actions`)."""
         return legal_actions(self, state, index, limit)
 
     # -- wire form ---------------------------------------------------
 
     def _decode(self, p: PVariable, x: Any) -> Value:
-        if p.range in self._c.codes:
+        if p.range in self._compiler.codes:
             return self.model.types[p.range].members[int(x)]
         if p.range == "bool":
             return bool(x)
@@ -428,18 +420,20 @@ class Simulator:
                 if len(args) != p.arity:
                     raise SimulationError(f"'{name}' takes {p.arity} argument(s), not {len(args)}")
                 try:
-                    idx = tuple(self._c.codes[t][a] for t, a in zip(p.params, args, strict=True))
+                    idx = tuple(
+                        self._compiler.codes[t][a] for t, a in zip(p.params, args, strict=True)
+                    )
                 except KeyError as err:
                     raise SimulationError(f"'{name}{args}': unknown object {err}") from None
-                if p.range in self._c.codes:
+                if p.range in self._compiler.codes:
                     v = (
                         value
-                        if isinstance(value, str) and value in self._c.codes[p.range]
+                        if isinstance(value, str) and value in self._compiler.codes[p.range]
                         else "@" + str(value).lstrip("@")
                     )
-                    if v not in self._c.codes[p.range]:
+                    if v not in self._compiler.codes[p.range]:
                         raise SimulationError(f"'{name}': '{value}' is not a value of '{p.range}'")
-                    out[name][(b, *idx)] = self._c.codes[p.range][v]
+                    out[name][(b, *idx)] = self._compiler.codes[p.range][v]
                 else:
                     out[name][(b, *idx)] = value
         return out

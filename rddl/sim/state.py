@@ -1,6 +1,5 @@
 """The simulator's public types: `State`, `Step`, `Prepared` and
-`SimulationError`, with `_Env` (a state and its actions, as the constraint
-checks take them) and `_make_step` (a `Step` built fast).
+`SimulationError`, and `_make_step` (a `Step` built fast).
 
 Owns nothing but these containers; imports only numpy. Every other module
 of the package may use them.
@@ -8,7 +7,6 @@ of the package may use them.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -76,24 +74,6 @@ class Prepared:
         self.state = state
         self.values = values
         self.rng_state = rng_state  # the bit generator's state before the draws
-
-
-class _Env:
-    """A state and actions, as `_check_preconditions` takes them."""
-
-    __slots__ = ("state", "actions", "rng", "batch")
-
-    def __init__(
-        self,
-        state: State,
-        actions: Mapping[str, Array],
-        rng: np.random.Generator | None,
-        batch: int,
-    ):
-        self.state = state
-        self.actions = actions
-        self.rng = rng
-        self.batch = batch
 
 
 _new = object.__new__

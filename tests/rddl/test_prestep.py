@@ -95,7 +95,7 @@ def test_prepare_finish_is_step(domain: str, instance: str) -> None:
 def test_sysadmin_split_moves_the_draws_and_the_state_part_ahead() -> None:
     sim = _sim("sysadmin_mdp.rddl", "sysadmin_inst_mdp__1.rddl")
     assert sim._split_one() is not None
-    pre, post = sim._c.sources["_pre_one"], sim._c.sources["_post_one"]
+    pre, post = sim._compiler.sources["_pre_one"], sim._compiler.sources["_post_one"]
     # names, not substrings: the sources quote the RDDL file's path, which
     # may contain any word (CI's checkout is under /check/)
     pre_names, post_names = _names(pre), _names(post)

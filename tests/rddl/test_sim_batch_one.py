@@ -136,7 +136,10 @@ def test_batch_of_one_code_widens_constants_and_raises_the_same(rddlsim_rddl: Pa
     sim = Simulator(load(rddlsim_rddl)["sysadmin_inst_mdp__1"])
     sim.step(sim.initial_state(1), None, np.random.default_rng(0))
     # (the constants of the batch-of-one code are other, widened, ones)
-    assert sim._c.sources["_step_one"].replace("_step_one", "_step") != sim._c.sources["_step"]
+    assert (
+        sim._compiler.sources["_step_one"].replace("_step_one", "_step")
+        != sim._compiler.sources["_step"]
+    )
     # too many actions: the same message from both
     acts = sim.noop(1)
     acts["reboot"][0, :3] = True

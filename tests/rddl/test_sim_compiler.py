@@ -78,7 +78,7 @@ def compare_variants(sim: Simulator, batch: int, steps: int, seed: int = 0) -> N
         nxt1, rew1, obs1, done1 = out1
         nxt2, rew2, obs2, done2 = out2
         for k in nxt1:
-            assert nxt1[k].shape == (batch, *sim._c.shape_of(sim.model.pvariables[k]))
+            assert nxt1[k].shape == (batch, *sim._compiler.shape_of(sim.model.pvariables[k]))
             assert _same(nxt1[k], nxt2[k]), k
         assert _same(rew1, rew2) and _same(done1, done2)
         assert (obs1 is None) == (obs2 is None)
@@ -132,7 +132,7 @@ def test_next_state_is_owned_and_batch_first(rddlsim_rddl: Path) -> None:
         before = {k: v.copy() for k, v in s.values.items()}
         out = sim.step(s, None, np.random.default_rng(0))
         for k, v in out.next_state.values.items():
-            shape = sim._c.shape_of(sim.model.pvariables[k])
+            shape = sim._compiler.shape_of(sim.model.pvariables[k])
             assert v.shape == (batch, *shape)
             assert not np.shares_memory(v, s.values[k])
             for k2, v2 in out.next_state.values.items():

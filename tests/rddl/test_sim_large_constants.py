@@ -82,14 +82,14 @@ def _bitwise(a: np.ndarray, b: np.ndarray) -> bool:
 
 def test_large_code_uses_the_new_forms(sim: Simulator) -> None:
     sim.step(sim.initial_state(32), sim.noop(32), np.random.default_rng(0))
-    src = sim._c.sources["_step_large"]
+    src = sim._compiler.sources["_step_large"]
     assert "_spread(" in src  # CAP, P against batched values
     assert "_gather_sum(" in src  # the count over LINK
     assert "_abs(" in src and "out=" in src.split("_abs(")[1].split("\n")[0]  # abs in place
     assert "np.exp(" in src and "out=" in src.split("np.exp(")[1].split("\n")[0]
     assert ".astype(_i64)" not in src  # the count stays uint8 into the float arithmetic
     # the small-batch code has none of it
-    small = sim._c.sources["_step"]
+    small = sim._compiler.sources["_step"]
     assert "_spread(" not in small and "_gather_sum(" not in small
 
 
