@@ -1,4 +1,4 @@
-"""A step in two parts (`Simulator.prepare` / `finish`, `rddl.prestep`): the
+"""A step in two parts (`Simulator.prepare` / `finish`, `rddl.sim.prestep`): the
 same next states, rewards, observations and draws as `step`, bit for bit."""
 
 from __future__ import annotations
