@@ -156,14 +156,22 @@ async def test_a_remote_handler_that_never_answers_times_out() -> None:
 @pytest.mark.trio
 async def test_a_closed_connection_fails_its_dispatches_at_once() -> None:
     async def leaves(client: JsonlClient, ready: trio.Event) -> None:
-        await client.call("handlers.register", {"actions": ["*"]})
         await client.call(
             "sensing.publish", {"stream": "camera", "msg": {"seen": {"office": True}}}
         )
+        # a second, raw connection registers, takes one dispatch and hangs up
+        port = client.stream.socket.getpeername()[1]
+        raw = await trio.open_tcp_stream("127.0.0.1", port)
+        await raw.send_all(
+            b'{"id": 1, "method": "handlers.register", "params": {"actions": ["*"]}}\n'
+        )
+        seen = b""
+        while b'"registered"' not in seen:
+            seen += await raw.receive_some(65536)
         ready.set()
-        event = await client.next_event()
-        assert event["event"] == "dispatch.action"
-        await client.stream.aclose()  # gone, mid-dispatch
+        while b"dispatch.action" not in seen:
+            seen += await raw.receive_some(65536)
+        await raw.aclose()  # gone, mid-dispatch
 
     report = await play(leaves, action_timeout=30.0)
     # the first dispatch failed at once (not after 30 s); the actions after it
