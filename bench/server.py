@@ -58,6 +58,7 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+from typing import TypedDict
 
 REPO = Path(__file__).resolve().parents[1]
 INSTANCE = "sysadmin_inst_mdp__1"
@@ -431,7 +432,21 @@ def stop(proc: subprocess.Popen[str] | subprocess.Popen[bytes] | None) -> None:
             proc.wait(10)
 
 
-def _row(server: str, n: int, runs: list[tuple[float, float, float, int]]) -> dict[str, object]:
+class Row(TypedDict):
+    """One line of the table: a server and a number of clients over the passes."""
+
+    server: str
+    clients: int
+    turns: int
+    runs: int
+    turns_per_s: float
+    min: float
+    max: float
+    server_cpu_us_per_turn: float
+    client_cpu_us_per_turn: float
+
+
+def _row(server: str, n: int, runs: list[tuple[float, float, float, int]]) -> Row:
     rates = [r for r, _, _, _ in runs]
     return {
         "server": server,
@@ -478,7 +493,7 @@ def main() -> None:
     else:
         workers = int(args.workers)
 
-    rows: list[dict[str, object]] = []
+    rows: list[Row] = []
     with tempfile.TemporaryDirectory(prefix="ippc-bench-") as tmp:
         folder = Path(tmp)
         rddl = bench_rddl(folder)
@@ -568,17 +583,17 @@ def main() -> None:
         f"{'server':8} {'clients':>7} {'turns':>8} {'turns/s':>9} {'(min-max)':>13} {'cpu us/turn':>11} {'client cpu':>10}  ratio to rddlsim (1 client)"
     )
     for r in rows:
-        rate = float(r["turns_per_s"])  # type: ignore[arg-type]
+        rate = r["turns_per_s"]
         if ref:
-            ratio = f"{rate / float(ref):6.1f}x (same run)"  # type: ignore[arg-type]
+            ratio = f"{rate / ref:6.1f}x (same run)"
         else:
             lo, hi = QUOTED_RDDLSIM
             ratio = f"{rate / hi:5.1f}x-{rate / lo:.1f}x (quoted 420-670/s, not this run)"
         spread = f"({r['min']:.0f}-{r['max']:.0f})"
         print(
             f"{r['server']:8} {r['clients']:>7} {r['turns']:>8} {rate:>9.0f} {spread:>13} "
-            f"{float(r['server_cpu_us_per_turn']):11.0f} {float(r['client_cpu_us_per_turn']):10.0f}  {ratio}"
-        )  # type: ignore[arg-type]
+            f"{r['server_cpu_us_per_turn']:11.0f} {r['client_cpu_us_per_turn']:10.0f}  {ratio}"
+        )
     if ("rddlsim", 1) in runs:
         # the same pass: seconds apart, so a change of the machine's speed
         # between passes cancels out
@@ -597,7 +612,7 @@ def main() -> None:
         if len(line) > 1:
             trend = " -> ".join(f"{r['turns_per_s']:.0f}" for r in line)
             holds = all(
-                float(b["turns_per_s"]) >= 0.9 * float(a["turns_per_s"])  # type: ignore[arg-type]
+                b["turns_per_s"] >= 0.9 * a["turns_per_s"]
                 for a, b in zip(line, line[1:], strict=False)
             )
             print(
@@ -611,8 +626,8 @@ def main() -> None:
             f"{key}: one client, share of the canned-reply server's rate within each pass: "
             + ", ".join(f"{x:.2f}" for x in share)
         )
-    floor = next(float(r["turns_per_s"]) for r in rows if r["server"] == "canned")  # type: ignore[arg-type]
-    first = next(float(r["turns_per_s"]) for r in rows if r["server"] == "ippc")  # type: ignore[arg-type]
+    floor = next(r["turns_per_s"] for r in rows if r["server"] == "canned")
+    first = next(r["turns_per_s"] for r in rows if r["server"] == "ippc")
     print(
         f"one client: {first / floor:.2f} of the canned-reply server's rate ({floor:.0f} turns/s)"
     )

@@ -215,7 +215,7 @@ class _Connection(Generic[_StateT]):
         """The current state."""
         return self._state
 
-    def receive_data(self, data: bytes) -> None:
+    def receive_data(self, data: bytes | bytearray) -> None:
         """Bytes received from the peer; ``b""`` means the peer closed the connection."""
         if data:
             self._reader.feed(data)

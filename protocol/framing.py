@@ -94,7 +94,7 @@ class MessageReader:
         until the next :meth:`next_message` skips it)."""
         return len(self._buf)
 
-    def feed(self, data: bytes) -> None:
+    def feed(self, data: bytes | bytearray) -> None:
         """Append received bytes. ``b""`` is ignored; use :meth:`feed_eof` for the end."""
         if not data:
             return
