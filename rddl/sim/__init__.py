@@ -147,21 +147,21 @@ state with `_step_one`: the same draws and values, laid out for speed.
 The package, one job per module (each module's docstring says what it owns
 and what it may call):
 
-    state         the public types: State, Step, Prepared, SimulationError
-    simulator     Simulator: arrays, the step, the two-part step, wire names
-    actions       random_actions and legal_actions
-    build         writing the step and constraint functions from the model
-    order         the order of the cpfs
-    compiler      _Compiler, assembled from the layers below
-    base          values, statements, constant folding, `compile`
-    operators     references, operators, if/switch, functions
-    aggregations  sum_, exists_... and their contractions
-    distributions the random draws
-    samplers      the draw functions of the other distributions
-    bounds        interval bounds carried through the arithmetic
-    code          the function being written, and its peephole passes
-    runtime       the helpers the generated code calls
-    prestep       the one-state step cut in its action-free and action parts
+    state          the public types: State, Step, Prepared, SimulationError
+    simulator      Simulator: arrays, the step, the two-part step, wire names
+    actions        random_actions and legal_actions
+    build          writing the step and constraint functions from the model
+    order          the order of the cpfs
+    compiler       _Compiler, assembled from the layers below
+    base           values, statements, constant folding, `compile`
+    operators      references, operators, if/switch, functions
+    aggregations   sum_, exists_... and their contractions
+    distributions  the random draws
+    samplers       the draw functions of the other distributions
+    bounds         interval bounds carried through the arithmetic
+    code           the function being written, and its peephole passes
+    runtime        the helpers the generated code calls
+    prestep        the one-state step cut in its action-free and action parts
 
 `ippc.rddl.simulator` re-exports the public names.
 """

@@ -10,7 +10,7 @@ one-state step), the errors the generated code raises through it
 (`state_to_names`, `actions_to_names`, `actions_from_names`). Choosing
 actions (`random_actions`, `legal_actions`) is in `actions`.
 
-May call `build`, `compiler`, `order`, `prestep`, `actions`, `runtime` and
+May call `build`, `compiler`, `order`, `prestep`, `actions`, `code`, `runtime` and
 `state`; nothing in the package calls it but through a `Simulator`.
 """
 
