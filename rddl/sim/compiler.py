@@ -9,8 +9,9 @@
 
 `compile(e, scope)` calls the method named after `e`'s AST class; a
 construct that no layer compiles (`_MatrixOp`, `_VectorDistribution`) is
-refused here with a `SimulationError`. `build` drives the compiler to
-write a simulator's functions; nothing else uses it.
+refused here with a `SimulationError`. Imports its layers (and `code`,
+`state`) only; `build` drives it to write a simulator's functions, and
+nothing else but `Simulator` (its constants and codes) uses it.
 """
 
 from __future__ import annotations

@@ -3,8 +3,8 @@
 Owns `_order_cpfs`: interm and derived fluents, then next-state cpfs, then
 observations, by level and declaration order as rddlsim does, except where
 a cpf reads one computed later (pyRDDLGym's levels-free style): then by
-dependency. A cycle is a `SimulationError`. Imports the model and the AST
-only.
+dependency. A cycle is a `SimulationError`. Imports the model, the AST and
+`state` only.
 """
 
 from __future__ import annotations

@@ -32,6 +32,9 @@ sees:
 
 Sources that assign a name twice are not split (None), nor are those with
 nothing to move.
+
+Works on the source text alone (Python's `ast`) and imports nothing of the
+package; `Simulator.prepare` / `finish` compile and call the two parts.
 """
 
 from __future__ import annotations
