@@ -266,16 +266,23 @@ class MessageReader:
         self._lex = _Lex.TEXT
         return True
 
+    def _leave_quote(self, n: int) -> bool:
+        """Inside a quoted value (of an attribute, or in a DOCTYPE): move past its closing
+        quote; False when that is not buffered yet (everything up to `n` is consumed)."""
+        end = self._buf.find(bytes((self._quote,)), self._pos)
+        if end < 0:
+            self._pos = n
+            return False
+        self._pos, self._quote = end + 1, 0
+        return True
+
     def _scan_decl(self, n: int) -> bool:
         """Inside <!DOCTYPE ...>: find the '>' outside quotes and the internal subset."""
         buf = self._buf
         while self._pos < n:
             if self._quote:
-                end = buf.find(bytes((self._quote,)), self._pos)
-                if end < 0:
-                    self._pos = n
+                if not self._leave_quote(n):
                     return False
-                self._pos, self._quote = end + 1, 0
                 continue
             m = _DECL_SPECIAL.search(buf, self._pos)
             if m is None:
@@ -299,11 +306,8 @@ class MessageReader:
         buf = self._buf
         while self._pos < n:
             if self._quote:
-                end = buf.find(bytes((self._quote,)), self._pos)
-                if end < 0:
-                    self._pos = n
+                if not self._leave_quote(n):
                     return None
-                self._pos, self._quote = end + 1, 0
                 continue
             m = _TAG_SPECIAL.search(buf, self._pos)
             if m is None:
