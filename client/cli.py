@@ -14,7 +14,8 @@ from ..planners.base import ExternalPlanner, PlannerError, find_planner, make_pl
 from .session import ClientConfig, ClientError, SessionResult, run_session
 
 
-def _options(pairs: tuple[str, ...]) -> dict[str, str]:
+def parse_planner_options(pairs: tuple[str, ...]) -> dict[str, str]:
+    """--planner-option KEY=VALUE pairs as a dict (rddl-dispatch reads them too)."""
     out: dict[str, str] = {}
     for pair in pairs:
         key, sep, value = pair.partition("=")
@@ -111,7 +112,7 @@ def main(
         format="%(levelname)s %(name)s: %(message)s",
         stream=sys.stderr,
     )
-    options = _options(planner_options)
+    options = parse_planner_options(planner_options)
     try:
         declared = find_planner(planner).options
     except PlannerError as err:

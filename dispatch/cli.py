@@ -12,6 +12,7 @@ from typing import Any
 import click
 import trio
 
+from ..client.cli import parse_planner_options
 from ..kb import KBError, KnowledgeBase
 from ..planners.base import PlannerError, find_planner
 from ..rddl import RDDLError
@@ -27,16 +28,6 @@ from .run import (
     server_config,
 )
 from .run import simulate as simulate_run
-
-
-def _options(pairs: tuple[str, ...]) -> dict[str, str]:
-    out: dict[str, str] = {}
-    for pair in pairs:
-        key, sep, value = pair.partition("=")
-        if not sep or not key:
-            raise click.BadParameter(f"{pair!r} is not KEY=VALUE", param_hint="--planner-option")
-        out[key.strip()] = value
-    return out
 
 
 def print_report(report: RunReport) -> None:
@@ -174,7 +165,7 @@ def main(
                 raise click.ClickException(str(err)) from None
         spec = PlannerSpec(
             name=planner or "prost",
-            options=_options(planner_options),
+            options=parse_planner_options(planner_options),
             prost=None if prost_bin is None else str(prost_bin),
             no_header=no_header,
             seed=seed,

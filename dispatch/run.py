@@ -14,6 +14,7 @@ simulated world (`ippc.dispatch.world`), callable from Python as from
 
 from __future__ import annotations
 
+import functools
 import logging
 import time
 from collections.abc import Awaitable, Callable, Mapping
@@ -487,32 +488,11 @@ async def simulate_async(
     return report
 
 
-def simulate(
-    domain: str | Path,
-    instance: str | Path,
-    *,
-    seed: int = 0,
-    planner: PlannerSpec | None = None,
-    rounds: int = DEFAULT_ROUNDS,
-    db: Path | None = None,
-    transcripts: Path | None = None,
-    planner_timeout: float | None = None,
-    **world: Any,
-) -> RunReport:
+def simulate(domain: str | Path, instance: str | Path, **options: Any) -> RunReport:
     """One whole simulated run (world, sensing, knowledge base, dispatcher,
-    planner, handlers): the report of the session. World options:
-    `durations`, `costs`, `failures`, `sensed`, `action_timeout`,
-    `stop_at_goal` (see `SimulatedWorld`)."""
-    return trio.run(
-        lambda: simulate_async(
-            domain,
-            instance,
-            seed=seed,
-            planner=planner,
-            rounds=rounds,
-            db=db,
-            transcripts=transcripts,
-            planner_timeout=planner_timeout,
-            **world,
-        )
-    )
+    planner, handlers): the report of the session. `options` are those of
+    `simulate_async`: `seed`, `planner` (a `PlannerSpec`), `rounds`, `db`,
+    `transcripts`, `planner_timeout`, and the world's `durations`, `costs`,
+    `failures`, `sensed`, `action_timeout`, `stop_at_goal` (see
+    `SimulatedWorld`)."""
+    return trio.run(functools.partial(simulate_async, domain, instance, **options))
