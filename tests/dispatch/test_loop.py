@@ -160,3 +160,23 @@ def test_the_cli_refuses_bad_combinations(tmp_path: Path) -> None:
     assert unknown.exit_code != 0 and "nope" in unknown.output
     nothing = runner.invoke(main, [])
     assert nothing.exit_code != 0 and "DOMAIN and INSTANCE are needed" in nothing.output
+
+
+def test_the_cli_reports_a_bad_sensing_config_or_robot_file(tmp_path: Path) -> None:
+    config = tmp_path / "sensing.yaml"
+    config.write_text("sensors:\n  present:\n    stream: cam\n    value: open('/etc/passwd')\n")
+    robot = tmp_path / "robot.py"
+    robot.write_text("def setup(robot):\n    raise RuntimeError('no robot here')\n")
+    runner = CliRunner()
+    bad = runner.invoke(main, [str(DOMAIN), str(ONE), "--sensing", str(config)])
+    assert bad.exit_code == 1
+    assert f"{config}:4:12: present: value function calls are not allowed" in bad.output
+    config.write_text("sensors:\n  present:\n    stream: cam\n    value: msg.seen\n")
+    failing = runner.invoke(
+        main, [str(DOMAIN), str(ONE), "--sensing", str(config), "--robot", str(robot)]
+    )
+    assert failing.exit_code == 1
+    assert f"{robot}: setup failed: RuntimeError: no robot here" in failing.output
+    robot.write_text("x = 1\n")
+    empty = runner.invoke(main, [str(DOMAIN), str(ONE), "--robot", str(robot)])
+    assert empty.exit_code == 1 and "defines no setup(robot) function" in empty.output

@@ -55,7 +55,11 @@ def run_robot(db: Path, *, lie_once: bool = False, hang_once: bool = False):  # 
         robot.sensing.feed("camera", {"seen": {"office": True}})  # type: ignore[union-attr]
         await trio.sleep_forever()
 
+    async def broken_sensor() -> None:
+        raise OSError("lidar unplugged")  # logged; the dispatcher goes on
+
     robot.start_soon(camera)
+    robot.start_soon(broken_sensor)
     config = server_config(rounds=2, db=db)
     report = trio.run(
         lambda: dispatch_session(
