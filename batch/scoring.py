@@ -243,8 +243,8 @@ def score(
     else 30). ``expected`` lists (planner, instance, domain) that should have played
     (jobs not played yet). Every planner gets a score on every instance: 0 where it has no
     round, as in FinalEval. An instance without a baseline round cannot be
-    normalised: it is left out with a warning (rddlsim's MinMaxEval stops there), and
-    listed in ``skipped``.
+    normalised: it is left out (rddlsim's MinMaxEval stops there), and
+    listed in ``skipped`` (the CLI prints it).
     """
     try:
         rule = RULES[rules]
@@ -276,8 +276,12 @@ def score(
         means = {p: statistics.fmean(v) for p, v in chosen.items() if v}
         baseline = [m for p, m in means.items() if p.lower() in BASELINE_NAMES]
         if not baseline:
-            why = "no baseline (noop or random) round to normalise with"
-            log.warning("instance %s: %s; not scored", instance, why)
+            why = (
+                "no baseline (noop or random) round to normalise with"
+                if means
+                else "no round played yet"
+            )
+            log.info("instance %s: %s; not scored", instance, why)
             table.skipped[instance] = why
             continue
         lo = max(baseline)
