@@ -133,10 +133,11 @@ def write_report(
         ax.bar(xs, [score_of.get((inst, planner), 0.0) for inst in instances], width, label=planner)
     ax.set_xticks(range(len(instances)))
     ax.set_xticklabels(instances, rotation=70, ha="right", fontsize=7)
-    ax.set_ylim(0, 1.05)
+    ax.set_ylim(0, 1.18)  # room for the legend above the bars
+    ax.set_xlim(-0.6, len(instances) - 0.4)
     ax.set_ylabel(f"IPPC score ({table.rules})")
     ax.set_title("Score per instance")
-    ax.legend(fontsize=8, ncols=min(len(planners), 6))
+    ax.legend(fontsize=8, ncols=min(len(planners), 6), loc="upper left")
     fig_scores = _save(fig, out, "score_per_instance")
     plt.close(fig)
 

@@ -249,3 +249,14 @@ def test_against_an_existing_server_records_what_the_client_saw(tmp_path: Path) 
     finally:
         os.killpg(server.pid, signal.SIGTERM)
         server.wait(20)
+
+
+def test_the_small_example_runs_as_written(tmp_path: Path) -> None:
+    db = tmp_path / "small.sqlite"
+    summary = run_batch(load_experiment(REPO / "examples" / "small.toml"), db)
+    assert (summary.total, summary.finished, summary.failed) == (12, 12, 0)
+    with BatchStore(db) as store:
+        table = score(store.round_records(), "ippc2014", expected=store.expected())
+    assert set(table.planners()) == {"noop", "random", "replan"}
+    assert len(table.instances) == 12 and all(0.0 <= s.score <= 1.0 for s in table.instances)
+    assert all(s.rounds == 5 for s in table.instances)
