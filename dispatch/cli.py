@@ -183,6 +183,7 @@ def main(
                 planner=spec or PlannerSpec("noop"),
                 rounds=rounds,
                 db=db,
+                timeout=timeout,
                 action_timeout=action_timeout,
                 stop_at_goal=not no_stop_at_goal,
             )

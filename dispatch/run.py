@@ -471,13 +471,16 @@ async def simulate_async(
     db: Path | None = None,
     transcripts: Path | None = None,
     planner_timeout: float | None = None,
+    timeout: float = 0.0,
     **world: Any,
 ) -> RunReport:
-    """`simulate`, inside a trio run."""
+    """`simulate`, inside a trio run. `timeout` is the session budget in
+    seconds (0: none; time-allowed is then rddlsim's default, 1080 s), which
+    PROST spreads over its steps."""
     kb = KnowledgeBase.from_files(domain, instance)
     the_world, dispatcher = build_simulation(kb, seed, **world)
     spec = planner or PlannerSpec()
-    config = server_config(rounds=rounds, db=db, transcripts=transcripts)
+    config = server_config(rounds=rounds, db=db, transcripts=transcripts, timeout=timeout)
     config = ServerConfig(**{**config.__dict__, "seed": seed})
     # simulated time: nothing needs to run while the planner thinks
     report = await dispatch_session(
@@ -492,7 +495,7 @@ def simulate(domain: str | Path, instance: str | Path, **options: Any) -> RunRep
     """One whole simulated run (world, sensing, knowledge base, dispatcher,
     planner, handlers): the report of the session. `options` are those of
     `simulate_async`: `seed`, `planner` (a `PlannerSpec`), `rounds`, `db`,
-    `transcripts`, `planner_timeout`, and the world's `durations`, `costs`,
+    `transcripts`, `planner_timeout`, `timeout`, and the world's `durations`, `costs`,
     `failures`, `sensed`, `action_timeout`, `stop_at_goal` (see
     `SimulatedWorld`)."""
     return trio.run(functools.partial(simulate_async, domain, instance, **options))

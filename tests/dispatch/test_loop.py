@@ -4,6 +4,7 @@ planner over the IPPC protocol, handlers."""
 from __future__ import annotations
 
 import json
+import os
 from pathlib import Path
 
 import pytest
@@ -180,3 +181,18 @@ def test_the_cli_reports_a_bad_sensing_config_or_robot_file(tmp_path: Path) -> N
     robot.write_text("x = 1\n")
     empty = runner.invoke(main, [str(DOMAIN), str(ONE), "--robot", str(robot)])
     assert empty.exit_code == 1 and "defines no setup(robot) function" in empty.output
+
+
+@pytest.mark.alone
+def test_real_prost_reaches_the_goal() -> None:
+    binary = os.environ.get("IPPC_REAL_PROST")
+    if not binary:
+        pytest.skip(
+            "set IPPC_REAL_PROST to PROST's search program (e.g. a build's bin/search-release, "
+            "with rddl-parser-release beside it) to run the dispatcher against the real PROST"
+        )
+    report = simulate(
+        DOMAIN, ONE, seed=1, planner=PlannerSpec(prost=binary), rounds=1, timeout=30.0
+    )
+    assert report.planner_error is None, report.planner_error
+    assert report.goal_reached and plan(report.executed)[-1] == ("drop(r1)", "succeeded")
