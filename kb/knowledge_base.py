@@ -29,11 +29,12 @@ import numpy as np
 from ..rddl.loader import load_pair
 from ..rddl.model import ACTION, NON_FLUENT, STATE, GroundKey, Model, PVariable, Value
 from ..rddl.simulator import SimulationError, Simulator, State
-from ..rddl.writer import write_expr
+from ..rddl.writer import write, write_expr
 from .evaluate import Evaluator, NotEvaluable
 from .goal import Goal, GoalSource, find_goal, ground_goal
 from .metric import expression_tree
 from .operators import Operator, Parameter, parameter_names, translate
+from .rddl_instance import rddl_instance
 from .report import Unsupported
 from .store import Change, KBError, Store, Update
 
@@ -471,6 +472,27 @@ class KnowledgeBase:
             except SimulationError as err:
                 raise KBError(f"cannot evaluate the reward: {err}", "bad-action") from None
             return float(step.reward[0])
+
+    # ------------------------------------------------------ problem generation
+
+    def to_rddl_instance(
+        self,
+        name: str | None = None,
+        non_fluents_name: str | None = None,
+        *,
+        explicit: bool = False,
+    ) -> str:
+        """RDDL text: a non-fluents block and an instance block of the current
+        objects, non-fluents, state, horizon, discount and max-nondef-actions
+        (fluent or non-fluent decided by the declarations). Only values that
+        differ from their declared default are written, unless `explicit`.
+        Names default to ROSPlan's: "<domain>__generated_instance" and
+        "nf_" before it."""
+        return rddl_instance(self, name, non_fluents_name, explicit)
+
+    def domain_rddl(self) -> str:
+        """The domain block, as `ippc.rddl`'s writer writes it."""
+        return write(self.model.domain)
 
     # ---------------------------------------------------------------- misc
 
