@@ -445,17 +445,27 @@ def build_simulation(
     costs: PerAction | None = None,
     failures: Any = None,
     sensed: Any = None,
+    exogenous: Any = None,
+    observe: Any = None,
     action_timeout: float | None = 60.0,
     stop_at_goal: bool = True,
 ) -> tuple[SimulatedWorld, Dispatcher]:
     """The simulated world and a dispatcher wired to it (sensing reads the
     world's streams; the world's handlers execute every action)."""
     world = SimulatedWorld(
-        kb.model, seed, sensed=sensed, durations=durations, costs=costs, failures=failures
+        kb.model,
+        seed,
+        sensed=sensed,
+        durations=durations,
+        costs=costs,
+        failures=failures,
+        exogenous=exogenous,
+        observe=observe,
     )
     clock: Clock = world.clock
     sensing = Sensing(kb, world.sensing_config(), clock=clock)
     world.connect(sensing.feed)
+    sensing.flush()  # what the sensors see at the start is known before the first turn
     handlers: Handlers = world.handlers(timeout=action_timeout)
     dispatcher = Dispatcher(kb, handlers, sensing, clock=clock, stop_at_goal=stop_at_goal)
     return world, dispatcher
@@ -496,6 +506,6 @@ def simulate(domain: str | Path, instance: str | Path, **options: Any) -> RunRep
     planner, handlers): the report of the session. `options` are those of
     `simulate_async`: `seed`, `planner` (a `PlannerSpec`), `rounds`, `db`,
     `transcripts`, `planner_timeout`, `timeout`, and the world's `durations`, `costs`,
-    `failures`, `sensed`, `action_timeout`, `stop_at_goal` (see
-    `SimulatedWorld`)."""
+    `failures`, `sensed`, `exogenous`, `observe`, `action_timeout`,
+    `stop_at_goal` (see `SimulatedWorld`)."""
     return trio.run(functools.partial(simulate_async, domain, instance, **options))

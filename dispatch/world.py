@@ -26,7 +26,18 @@ action then does not happen) or when it had no effect (the world's next
 state is the one it would have reached without that action, with the same
 draws: wait_load at a printer where nobody is); succeeded otherwise.
 `durations` and `costs` give each action's simulated seconds and its cost
-(a number per action name, or a function of the action and the world).
+(a number, a number per action name, "noop" for a turn without actions, or
+a function of the action and the world, called after the step:
+`world.previous_state` is the state it started from, `world.outcomes` how
+each action ended).
+
+Two hooks for experiments whose world is not the model's: `exogenous(world,
+before, after, actions)` returns the true next state (called on the
+initial state too, with `before` None), e.g. to force who is where;
+`observe(world, state)` returns what the sensors report, `{fluent: {args:
+value}}`, published after every step (and on the initial state) whether or
+not it changed, e.g. sensors that see only where the robot stands. The
+step's reward is the model's, before `exogenous`.
 
 Time is the `SimulatedClock`'s: nothing sleeps, a run takes the time its
 computation takes.
@@ -56,6 +67,10 @@ STREAM_PREFIX = "world/"
 
 PerAction = float | Mapping[str, float] | Callable[[GroundAction, "SimulatedWorld"], float]
 FailureRule = Mapping[str, float] | Callable[[Dispatch, "SimulatedWorld"], bool | str]
+#: fn(world, before (None for the initial state), after, actions) -> the true next state
+Exogenous = Callable[["SimulatedWorld", State | None, State, list[GroundAction]], State]
+#: fn(world, state) -> {fluent: {args: value}}, what the sensors report in `state`
+Observe = Callable[["SimulatedWorld", State], Mapping[str, Mapping[tuple[str, ...], Value]]]
 
 
 class SimulatedWorld:
@@ -71,6 +86,8 @@ class SimulatedWorld:
         durations: PerAction = 1.0,
         costs: PerAction | None = None,
         failures: FailureRule | None = None,
+        exogenous: Exogenous | None = None,
+        observe: Observe | None = None,
     ):
         self.model = model
         self.sim = Simulator(model)
@@ -93,6 +110,15 @@ class SimulatedWorld:
         self.durations = durations
         self.costs = costs
         self.failures = failures
+        self.exogenous = exogenous
+        self.observe = observe
+        #: the state the last step started from (None before the first step)
+        self.previous_state: State | None = None
+        #: how each action of the last step ended (durations and costs may read it)
+        self.outcomes: dict[GroundAction, Status] = {}
+        self._initial = self.state
+        if exogenous is not None:
+            self.state = exogenous(self, None, self.state, [])
         self.reward = 0.0  # undiscounted sum of the rewards of the world's steps
         self.steps = 0
         self._publish: Callable[[str, Any], Any] | None = None
@@ -117,8 +143,15 @@ class SimulatedWorld:
 
     def connect(self, publish: Callable[[str, Any], Any]) -> None:
         """Publish sensor messages through `publish(stream, msg)` (e.g.
-        `Sensing.feed`)."""
+        `Sensing.feed`), starting with what the sensors see in the initial
+        state: with `observe`, its report; else the sensed groundings where
+        the true initial state differs from the instance's (an `exogenous`
+        hook changed them)."""
         self._publish = publish
+        if self.observe is not None:
+            self._publish_observation(self.state)
+        else:
+            self._publish_changes(self._initial, self.state)
 
     def handlers(self, timeout: float | None = 60.0) -> Handlers:
         """Handlers for every action of the domain and for noop, on the
@@ -212,10 +245,18 @@ class SimulatedWorld:
             if _same(without.next_state, step.next_state):
                 messages[a] = (Status.FAILED, "it had no effect in the world")
         bitgen.state = after
-        self.state = step.next_state
+        nxt = step.next_state
+        if self.exogenous is not None:
+            nxt = self.exogenous(self, before, nxt, happening)
+        self.previous_state = before
+        self.state = nxt
         self.reward += float(step.reward[0])
         self.steps += 1
-        self._publish_changes(before, self.state)
+        if self.observe is not None:
+            self._publish_observation(nxt)
+        else:
+            self._publish_changes(before, nxt)
+        self.outcomes = {a: messages.get(a, (Status.SUCCEEDED, ""))[0] for a in actions}
         results: dict[GroundAction, Result] = {}
         for a in actions:
             status, message = messages.get(a, (Status.SUCCEEDED, ""))
@@ -230,6 +271,27 @@ class SimulatedWorld:
                 Status.SUCCEEDED, "", None, self._per_action(self.durations, noop)
             )
         return results
+
+    def _publish_observation(self, state: State) -> None:
+        if self._publish is None or self.observe is None:
+            return
+        report = self.observe(self, state)
+        for name in sorted(report):
+            if name not in self.sensed:
+                raise ValueError(
+                    f"observe reported {name!r}, which is not sensed "
+                    f"(sensed: {', '.join(sorted(self.sensed))}); pass sensed=[...]"
+                )
+            values = report[name]
+            if not values:
+                continue
+            if not self._vars[name].arity:
+                self._publish(STREAM_PREFIX + name, {"value": values[()]})
+            else:
+                self._publish(
+                    STREAM_PREFIX + name,
+                    {"values": {":".join(args): v for args, v in values.items()}},
+                )
 
     def _publish_changes(self, before: State, after: State) -> None:
         if self._publish is None:
