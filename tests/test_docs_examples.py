@@ -10,6 +10,7 @@ import doctest
 import io
 import os
 import re
+import shlex
 import shutil
 import subprocess
 import sys
@@ -248,8 +249,12 @@ def test_console_example(page: str, first: str, tmp_path: Path) -> None:
             assert cmds == ["make demo"]
             make = shutil.which("make")
             assert make, "make is needed (the project's commands are make targets)"
-            # the target's own commands, with this interpreter's scripts, without re-installing
-            actual = _shell(f"'{make}' -s -o install demo BIN='{BIN}'", REPO)
+            # the target's own commands, with this interpreter's scripts, without
+            # re-installing (the Makefile's own BIN when that is where they are: it is
+            # relative, and a path with spaces cannot be handed to make)
+            own = BIN.resolve() == (REPO / ".venv" / "bin").resolve()
+            bin_arg = "" if own else f" BIN={shlex.quote(str(BIN))}"
+            actual = _shell(f"{shlex.quote(make)} -s -o install demo{bin_arg}", REPO)
         elif check.kind == "server":
             (cmd,) = cmds
             args = cmd.split()[1:]
