@@ -26,6 +26,7 @@ from typing import Any
 
 import trio
 
+from ..kb.operators import parameter_names
 from ..rddl.model import Model, Value
 from .clock import Clock, WallClock
 
@@ -105,18 +106,11 @@ ActionHandler = Callable[[Dispatch], Awaitable[Any]]
 
 
 def parameter_keys(model: Model, action: str) -> tuple[str, ...]:
-    """The keys ROSPlan's knowledge base gives an action's parameters: the
-    type's first letter, with a counter from the second use on
-    (goto_waypoint(robot, waypoint, waypoint) -> r, w, w1)."""
-    p = model.pvariables[action]
-    seen: dict[str, int] = {}
-    keys: list[str] = []
-    for type_name in p.params:
-        letter = type_name[:1].lower() or "p"
-        n = seen.get(letter, 0)
-        keys.append(letter if n == 0 else f"{letter}{n}")
-        seen[letter] = n + 1
-    return tuple(keys)
+    """The keys the knowledge base gives an action's parameters, as ROSPlan
+    names them (`ippc.kb.operators.parameter_names`: the type's first
+    letter, with a counter from the second use on; goto_waypoint(robot,
+    waypoint, waypoint) -> r, w, w1)."""
+    return parameter_names(model.pvariables[action].params)
 
 
 def as_result(answer: Any, where: str) -> Result:
