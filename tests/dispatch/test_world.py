@@ -85,3 +85,21 @@ def test_durations_read_the_step_they_follow() -> None:
     by = [(e["action"], e["outcome"], e["seconds"]) for e in report.executed]
     assert by[1] == ("pickup(r1)", "failed", 75.0)
     assert all(s == 20.0 for _, outcome, s in by if outcome == "succeeded")
+
+
+def test_the_dispatcher_checks_preconditions_on_the_knowledge_bases_non_fluents() -> None:
+    from ippc.kb import Update
+
+    kb = KnowledgeBase.from_files(DOMAIN, ONE)
+    # a client learns at start-up that the hall-office door is locked (the
+    # planner's task still has it open)
+    kb.apply([Update("set", "CONNECTED", ("hall", "office"), False)], "setup")
+    _, dispatcher = build_simulation(kb, 1)
+    report = trio.run(
+        lambda: dispatch_session(dispatcher, PlannerSpec("exact"), server_config(rounds=1))
+    )
+    first = report.executed[0]
+    assert (first["action"], first["outcome"]) == ("move(r1,hall,office)", "precondition-false")
+    assert "move(?r, ?x, ?y) => (robot-at(?r, ?x) ^ CONNECTED(?x, ?y))" in first["message"]
+    assert not report.goal_reached
+    assert all(e["outcome"] == "precondition-false" for e in report.executed)
