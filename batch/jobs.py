@@ -349,7 +349,10 @@ def _run_against(job: Job, started: float) -> JobResult:
             timeout=hard,
             log_path=_log_path(job),
         )
-        rewards = [(r, None, None) for r in res.rounds]
+        # PROST's log gives round rewards only, not turns or times
+        rewards: list[tuple[float, int | None, float | None]] = [
+            (r, None, None) for r in res.rounds
+        ]
         error = res.error
         total = res.total_reward
     else:
