@@ -34,6 +34,7 @@ from .evaluate import Evaluator, NotEvaluable
 from .goal import Goal, GoalSource, find_goal, ground_goal
 from .metric import expression_tree
 from .operators import Operator, Parameter, parameter_names, translate
+from .pddl import to_pddl
 from .rddl_instance import rddl_instance
 from .report import Unsupported
 from .store import Change, KBError, Store, Update
@@ -489,6 +490,13 @@ class KnowledgeBase:
         Names default to ROSPlan's: "<domain>__generated_instance" and
         "nf_" before it."""
         return rddl_instance(self, name, non_fluents_name, explicit)
+
+    def to_pddl(self, mode: str = "most-likely") -> tuple[str, str]:
+        """A classical PDDL (domain, problem) of the current knowledge by
+        determinisation: `mode` "most-likely" or "all-outcomes"; action
+        costs from the reward; the goal from `goal()` (KBError without one).
+        See `ippc.kb.pddl`."""
+        return to_pddl(self, mode)
 
     def domain_rddl(self) -> str:
         """The domain block, as `ippc.rddl`'s writer writes it."""
