@@ -37,7 +37,16 @@ def start_batch(path: Path, db: Path) -> subprocess.Popen[bytes]:
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         start_new_session=True,  # our own group: a stray worker can be cleaned up
+        # Started in the background by a non-interactive shell (`make test &`), pytest
+        # and its children inherit SIGINT ignored, and the Ctrl-C test would send a
+        # signal nobody hears: the batch gets the default disposition, so Python
+        # installs its KeyboardInterrupt handler as in a terminal.
+        preexec_fn=_default_sigint,
     )
+
+
+def _default_sigint() -> None:
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
 
 
 def wait_for(db: Path, proc: subprocess.Popen[bytes], n: int, seconds: float = 180.0) -> int:
