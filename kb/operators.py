@@ -100,6 +100,17 @@ def _text(e: A.Expr | None) -> str | None:
     return None if e is None or e == TRUE else write_expr(e)
 
 
+def _guarded(
+    out: dict[str, Any], condition: str | None, forall: tuple[Parameter, ...]
+) -> dict[str, Any]:
+    """`out` with the condition and forall parameters of an effect, if any."""
+    if condition:
+        out["condition"] = condition
+    if forall:
+        out["forall"] = [p.to_json() for p in forall]
+    return out
+
+
 @dataclass(frozen=True)
 class Effect:
     """One effect: `kind` is add, delete, assign, increase or decrease;
@@ -135,11 +146,7 @@ class Effect:
         out: dict[str, Any] = {"kind": self.kind, **self.atom.to_json()}
         if self.value_expr is not None:
             out["value"] = self.value
-        if self.condition:
-            out["condition"] = self.condition
-        if self.forall:
-            out["forall"] = [p.to_json() for p in self.forall]
-        return out
+        return _guarded(out, self.condition, self.forall)
 
 
 @dataclass(frozen=True)
@@ -170,15 +177,8 @@ class ProbabilisticEffect:
         return _text(self.condition_expr)
 
     def to_json(self) -> dict[str, Any]:
-        out: dict[str, Any] = {
-            "draw": self.draw,
-            "outcomes": [o.to_json() for o in self.outcomes],
-        }
-        if self.condition:
-            out["condition"] = self.condition
-        if self.forall:
-            out["forall"] = [p.to_json() for p in self.forall]
-        return out
+        out: dict[str, Any] = {"draw": self.draw, "outcomes": [o.to_json() for o in self.outcomes]}
+        return _guarded(out, self.condition, self.forall)
 
 
 @dataclass(frozen=True)

@@ -133,6 +133,19 @@ def register_kb(server: JsonlServer, kb: KnowledgeBase) -> None:
         """the values of an enum type: {type}"""
         return kb.enum_values(_param(params, "type", str))
 
+    @method("kb.rddl_instance")
+    def rddl_instance(params: dict[str, Any], conn: Connection) -> Any:
+        """the RDDL non-fluents and instance blocks of the current state: {explicit?, name?}"""
+        return kb.to_rddl_instance(
+            _param(params, "name", str, None), explicit=_param(params, "explicit", bool, False)
+        )
+
+    @method("kb.pddl")
+    def pddl(params: dict[str, Any], conn: Connection) -> Any:
+        """a PDDL domain and problem by determinisation: {mode?} (most-likely, all-outcomes)"""
+        domain, problem = kb.to_pddl(_param(params, "mode", str, "most-likely"))
+        return {"domain": domain, "problem": problem}
+
     # -- state
 
     @method("kb.get")

@@ -10,6 +10,7 @@ import pytest
 from ippc.kb import Change, KBError, KnowledgeBase, Update
 from ippc.rddl import RDDLError
 from ippc.rddl.simulator import Simulator
+from ippc.rddl.writer import write
 
 from .conftest import KB_DATA, TURTLEBOT_DOMAIN
 
@@ -309,3 +310,15 @@ def test_immediate_reward_of_the_print_domain(turtlebot: KnowledgeBase) -> None:
     assert turtlebot.immediate_reward(["goto_waypoint(kenny, dan-office, phdarea)"]) == -100.5
     with pytest.raises(KBError, match="'fly' is not an action fluent"):
         turtlebot.immediate_reward(["fly(kenny)"])
+
+
+def test_rosplan_parser_defects_are_not_here(tmp_path: Path) -> None:
+    # ROSPlan's parser refused `discount = 1` and read `a <=> b` as `a | a`.
+    inst = tmp_path / "one.rddl"
+    inst.write_text(
+        (KB_DATA / "turtlebot_printing_instance.rddl").read_text().replace("1.0;", "1;")
+    )
+    kb = KnowledgeBase.from_files(TURTLEBOT_DOMAIN, inst)
+    assert kb.discount == 1.0
+    (invariant,) = kb.model.domain.state_invariants
+    assert "docked(?r) <=> ~undocked(?r)" in write(invariant)

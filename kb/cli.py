@@ -1,0 +1,82 @@
+"""`rddl-kb`: a knowledge base on its own, served over JSON lines."""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+import click
+import trio
+
+from ..rddl import RDDLError
+from .jsonl import DEFAULT_HOST
+from .knowledge_base import KnowledgeBase
+from .service import serve_kb
+
+
+def load(domain: Path, instance: Path) -> KnowledgeBase:
+    """The knowledge base of DOMAIN and INSTANCE, or a ClickException with
+    every problem of the files by file, line and column."""
+    try:
+        return KnowledgeBase.from_files(domain, instance)
+    except RDDLError as err:
+        raise click.ClickException(str(err)) from None
+
+
+async def run(kb: KnowledgeBase, host: str, port: int) -> None:
+    """Serve `kb` and say where, until interrupted."""
+    async with trio.open_nursery() as nursery:
+        bound = await nursery.start(serve_kb, kb, host, port)
+        click.echo(f"listening on {host}:{bound}", nl=True)
+
+
+@click.command(context_settings={"help_option_names": ["-h", "--help"]})
+@click.argument("domain", type=click.Path(exists=True, dir_okay=False, path_type=Path))
+@click.argument("instance", type=click.Path(exists=True, dir_okay=False, path_type=Path))
+@click.option("--host", default=DEFAULT_HOST, show_default=True, help="Address to bind.")
+@click.option("--port", default=3235, show_default=True, help="TCP port; 0 picks a free one.")
+@click.option(
+    "--rddl", "write_rddl", is_flag=True, help="Print the RDDL instance of the state and exit."
+)
+@click.option(
+    "--pddl",
+    type=click.Choice(["most-likely", "all-outcomes"]),
+    help="Print the PDDL domain and problem (this determinisation) and exit.",
+)
+@click.option("-q", "--quiet", is_flag=True, help="Log warnings only.")
+def main(
+    domain: Path,
+    instance: Path,
+    host: str,
+    port: int,
+    write_rddl: bool,
+    pddl: str | None,
+    quiet: bool,
+) -> None:
+    """Serve the knowledge base of DOMAIN and INSTANCE (RDDL files) over
+    JSON lines on HOST:PORT (docs/knowledge-base.md lists the methods)."""
+    logging.basicConfig(
+        level=logging.WARNING if quiet else logging.INFO,
+        format="%(asctime)s %(name)s %(levelname)s %(message)s",
+    )
+    kb = load(domain, instance)
+    if write_rddl:
+        click.echo(kb.to_rddl_instance(), nl=False)
+        return
+    if pddl:
+        from .store import KBError
+
+        try:
+            d, p = kb.to_pddl(pddl)
+        except KBError as err:
+            raise click.ClickException(str(err)) from None
+        click.echo(d + "\n" + p, nl=False)
+        return
+    try:
+        trio.run(run, kb, host, port)
+    except KeyboardInterrupt:
+        pass
+
+
+if __name__ == "__main__":
+    main()
