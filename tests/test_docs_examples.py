@@ -59,7 +59,11 @@ CONSOLE: dict[tuple[str, str], Console] = {
 }
 
 #: Pages whose examples a test of their own runs as the page shows them (not run twice).
-CHECKED_BY: dict[str, str] = {"docs/robot.md": "tests/dispatch/test_docs_robot.py"}
+CHECKED_BY: dict[str, str] = {
+    "docs/robot.md": "tests/dispatch/test_docs_robot.py",
+    # one session across its python blocks, and a JSON-lines transcript replayed
+    "docs/knowledge-base.md": "tests/kb/test_docs.py",
+}
 
 
 def _all_blocks() -> list[tuple[str, int, Block, str]]:
