@@ -548,7 +548,7 @@ class Translator:
         frame: A.PVar,
     ) -> None:
         """Add the effects of `value` becoming the cpf's next value."""
-        names = {v: A.Var(k) for v, k in ctx.binding.items()}
+        names: dict[str, A.Expr] = {v: A.Var(k) for v, k in ctx.binding.items()}
         atom = Atom(cpf.name, tuple(ctx.binding[v] for v in cpf.params))
         own = substitute(frame, names)
         v = strip_delta(value)
