@@ -43,6 +43,13 @@ async def run(kb: KnowledgeBase, host: str, port: int) -> None:
     type=click.Choice(["most-likely", "all-outcomes"]),
     help="Print the PDDL domain and problem (this determinisation) and exit.",
 )
+@click.option(
+    "--exogenous",
+    type=click.Choice(["current", "most-likely", "outcomes"]),
+    default="current",
+    show_default=True,
+    help="With --pddl: what the world's own fluents do (see docs/knowledge-base.md).",
+)
 @click.option("-q", "--quiet", is_flag=True, help="Log warnings only.")
 def main(
     domain: Path,
@@ -51,6 +58,7 @@ def main(
     port: int,
     write_rddl: bool,
     pddl: str | None,
+    exogenous: str,
     quiet: bool,
 ) -> None:
     """Serve the knowledge base of DOMAIN and INSTANCE (RDDL files) over
@@ -67,7 +75,7 @@ def main(
         from .store import KBError
 
         try:
-            d, p = kb.to_pddl(pddl)
+            d, p = kb.to_pddl(pddl, exogenous)
         except KBError as err:
             raise click.ClickException(str(err)) from None
         click.echo(d + "\n" + p, nl=False)

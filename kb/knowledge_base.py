@@ -26,6 +26,7 @@ from typing import Any
 
 import numpy as np
 
+from ..rddl import ast as A
 from ..rddl.loader import load_pair
 from ..rddl.model import ACTION, NON_FLUENT, STATE, GroundKey, Model, PVariable, Value
 from ..rddl.simulator import SimulationError, Simulator, State
@@ -60,6 +61,7 @@ class KnowledgeBase:
         self._goal_source: GoalSource | None = find_goal(model)
         self._goal: Goal | None = None  # grounded on first use, again after non-fluents change
         self._simulator: Simulator | None = None  # built on first use, for R(s, a)
+        self._term_simulators: dict[str, Simulator] = {}  # reward term -> its simulator
         self._operators, self._unsupported = translate(model)
         for u in self._unsupported:
             log.info("%s: not in operator form: %s", model.domain_name, u)
@@ -253,6 +255,7 @@ class KnowledgeBase:
         if any(self._store.pvars[c.fluent].kind == NON_FLUENT for c in changes):
             self._goal = None
             self._simulator = None  # it folds non-fluents into constants
+            self._term_simulators = {}
 
     # -- sensed flags
 
@@ -419,6 +422,20 @@ class KnowledgeBase:
                 self._simulator = Simulator(self.to_model())
             return self._simulator
 
+    def term_simulator(self, term: A.Expr) -> Simulator:
+        """A simulator of the current non-fluents whose reward is `term`
+        (one additive term of the reward, for PDDL action costs); cached."""
+        key = write_expr(term)
+        with self._lock:
+            sim = self._term_simulators.get(key)
+            if sim is None:
+                model = self.to_model()
+                model = dataclasses.replace(
+                    model, domain=dataclasses.replace(model.domain, reward=term)
+                )
+                sim = self._term_simulators[key] = Simulator(model)
+            return sim
+
     def parse_action(self, text: str) -> tuple[str, tuple[str, ...], Value]:
         """A grounded action written as ROSPlan's clients write it,
         "goto_waypoint(kenny, a, b)" (value true), or "name(args) = value"."""
@@ -491,12 +508,14 @@ class KnowledgeBase:
         "nf_" before it."""
         return rddl_instance(self, name, non_fluents_name, explicit)
 
-    def to_pddl(self, mode: str = "most-likely") -> tuple[str, str]:
+    def to_pddl(self, mode: str = "most-likely", exogenous: str = "current") -> tuple[str, str]:
         """A classical PDDL (domain, problem) of the current knowledge by
-        determinisation: `mode` "most-likely" or "all-outcomes"; action
-        costs from the reward; the goal from `goal()` (KBError without one).
-        See `ippc.kb.pddl`."""
-        return to_pddl(self, mode)
+        determinisation: `mode` "most-likely" or "all-outcomes"; the
+        exogenous fluents at their current values, their most likely next
+        values, or as outcome actions ("current", "most-likely",
+        "outcomes"); action costs from the reward; the goal from `goal()`
+        (KBError without one). See `ippc.kb.pddl`."""
+        return to_pddl(self, mode, exogenous)
 
     def domain_rddl(self) -> str:
         """The domain block, as `ippc.rddl`'s writer writes it."""

@@ -28,20 +28,26 @@ Theory of operation. The domain is written from the operators
   of the operator's draws, named `<op>__o<i>_<j>...` (one outcome number per
   draw, from 1), each with that outcome's effects (at most 64 combinations an
   operator; further draws take their most likely outcome);
-* the exogenous operator (what the world does by itself): in mode
-  "most-likely" the initial state is the current one with the world's most
-  likely next values of the fluents it changes (somebody is at the printer
-  whose OCCUPATION_RATE is 0.94); in mode "all-outcomes" each outcome of each
-  of its draws is an action of cost 0 the planner may count on;
-* action costs from the reward: R(s, a) for every ground action at the
-  current state s in one batched simulator step; an action's cost is how
-  much less it earns than the best legal action, in hundredths (Fast
-  Downward wants integers), as `(increase (total-cost) c)`; where the
-  groundings of an operator cost differently, one action per cost,
-  `<action>__c<cost>`, each for the groundings a static predicate lists
-  (strict parsers take any cost function but total-cost for a numeric fluent,
-  which Fast Downward refuses); the problem minimises total-cost.
-  Reward terms that read the state are taken at the current state;
+* the exogenous operator (what the world does by itself) is no action: with
+  `exogenous="current"` (the default, the baseline of ROSPlan's experiments)
+  the fluents it changes keep their current values (what the robot last
+  sensed); with "most-likely" they start at the world's most likely next
+  values (somebody is at the printer whose OCCUPATION_RATE is 0.94); with
+  "outcomes" each outcome of each of its draws is an action of cost 0 the
+  planner may count on (`exogenous__<fluent>__o<i>`, not to be dispatched);
+* action costs from the reward, for every ground action at the current
+  state s, in one batched simulator step per additive term of the reward
+  (`a - b` has the terms a and -b) that reads action fluents: the term's
+  value with noop minus its value with the action alone, at least 0 (a
+  reward term is no cost; a term whose noop value is below every legal
+  action's, the anti-noop penalty, is taken against the best legal action
+  instead); summed over the terms, in hundredths (Fast Downward wants
+  integers), as `(increase (total-cost) c)`; where the groundings of an
+  operator cost differently, one action per cost, `<action>__c<cost>`, each
+  for the groundings a static predicate lists (strict parsers take any cost
+  function but total-cost for a numeric fluent, which Fast Downward
+  refuses); the problem minimises total-cost. Terms that read the state are
+  taken at the current state;
 * the goal: the knowledge base's goal facts, or its whole formula where the
   facts cannot say it (a choice between alternatives); a domain without a
   goal raises `KBError`.
@@ -67,7 +73,7 @@ from ..rddl import ast as A
 from ..rddl.model import ACTION, NON_FLUENT, PVariable
 from ..rddl.writer import write_expr
 from .evaluate import NotEvaluable
-from .exprs import TRUE, conjuncts, free_vars
+from .exprs import TRUE, conjuncts, free_vars, mentions
 from .goal import Goal
 from .operators import EXOGENOUS, Atom, Effect, Operator, Outcome, ProbabilisticEffect
 from .store import KBError
@@ -76,6 +82,7 @@ if TYPE_CHECKING:
     from .knowledge_base import KnowledgeBase
 
 MODES = ("most-likely", "all-outcomes")
+EXOGENOUS_MODES = ("current", "most-likely", "outcomes")
 MAX_VARIANTS = 64
 MAX_GROUND_ACTIONS = 200_000  # beyond this, unit costs
 COST_SCALE = 100  # costs in hundredths of the reward
@@ -122,11 +129,17 @@ class _Names:
 
 
 class _Writer:
-    def __init__(self, kb: KnowledgeBase, mode: str):
+    def __init__(self, kb: KnowledgeBase, mode: str, exogenous: str = "current"):
         if mode not in MODES:
             raise KBError(
                 f"unknown determinisation {mode!r} (one of {', '.join(MODES)})", "bad-params"
             )
+        if exogenous not in EXOGENOUS_MODES:
+            raise KBError(
+                f"unknown exogenous {exogenous!r} (one of {', '.join(EXOGENOUS_MODES)})",
+                "bad-params",
+            )
+        self.exogenous = exogenous
         self.kb = kb
         self.model = kb.model
         self.mode = mode
@@ -139,6 +152,7 @@ class _Writer:
         self.uses_never = False
         self._static_cache: dict[tuple[str, tuple[tuple[str, str], ...]], str] = {}
         self.stored = kb._store.pvars
+        self.action_names = frozenset(p.name for p in self.model.fluents(ACTION))
         self.objects_of_type: dict[str, tuple[str, ...]] = {
             t: info.members for t, info in self.model.types.items()
         }
@@ -470,8 +484,10 @@ class _Writer:
     # -- costs
 
     def costs(self, ops: list[Operator]) -> dict[str, str]:
-        """`(increase (total-cost) ...)` per operator, from R(s, a) at the
-        current state for every ground action, in one batched pass."""
+        """`(increase (total-cost) ...)` per operator: for every ground action,
+        what each additive term of the reward that reads actions costs it at
+        the current state against noop (see the module's docstring), in one
+        batched pass per term."""
         kb = self.kb
         sim = kb.simulator()
         acts = [
@@ -489,24 +505,37 @@ class _Writer:
             self.note("costs", f"{len(ground)} ground actions: every action costs 1")
             return {p.name: "(increase (total-cost) 1)" for p in acts}
         state = kb.to_state()
-        rewards = np.empty(len(ground))
         legal = np.empty(len(ground), dtype=bool)
+        terms = reward_terms(self.model.reward) if self.model.reward is not None else []
+        terms = [t for t in terms if mentions(t, self.action_names)]
+        # the value of each term for every ground action, and for noop (last row)
+        values = np.zeros((len(terms), len(ground) + 1))
         rng = np.random.default_rng(0)
-        for start in range(0, len(ground), _CHUNK):
+        for start in range(0, len(ground) + 1, _CHUNK):
             part = ground[start : start + _CHUNK]
-            b = len(part)
+            b = len(part) + (1 if start + _CHUNK > len(ground) else 0)
             batch = state[np.zeros(b, dtype=np.int64)]
             actions = sim.noop(b)
             for row, (p, idx) in enumerate(part):
                 actions[p.name][(row, *idx)] = True
-            step = sim.step(batch, actions, rng, check=False)
-            rewards[start : start + b] = step.reward
+            for k, term in enumerate(terms):
+                step = kb.term_simulator(term).step(batch, actions, rng, check=False)
+                values[k, start : start + b] = step.reward
             try:
-                legal[start : start + b] = sim.check_actions(batch, actions)
+                ok = sim.check_actions(batch, actions)
             except Exception:  # a constraint that cannot even be evaluated here
-                legal[start : start + b] = False
-        best = rewards[legal].max() if legal.any() else rewards.max()
-        cost = np.maximum(np.rint((best - rewards) * COST_SCALE), 0).astype(np.int64)
+                ok = np.zeros(b, dtype=bool)
+            legal[start : start + len(part)] = ok[: len(part)]
+        total = np.zeros(len(ground))
+        for k in range(len(terms)):
+            acts_k, noop_k = values[k, :-1], values[k, -1]
+            mine_k = acts_k[legal] if legal.any() else acts_k
+            if noop_k < mine_k.min():
+                ref = mine_k.max()  # a term that only punishes doing nothing
+            else:
+                ref = noop_k
+            total += np.maximum(ref - acts_k, 0.0)
+        cost = np.rint(total * COST_SCALE).astype(np.int64)
         out: dict[str, str] = {}
         start = 0
         for p in acts:
@@ -579,7 +608,7 @@ class _Writer:
         with kb._lock:
             costs = self.costs(kept)
             actions = [text for o in kept for text in self.action(o, costs)]
-            if self.mode == "all-outcomes":
+            if self.exogenous == "outcomes":
                 actions += self.exogenous_actions()
             goal_text = self.goal(goal)
             init = self.init()
@@ -656,8 +685,8 @@ class _Writer:
 
     def world_step(self) -> dict[tuple[str, tuple[str, ...]], bool]:
         """The boolean facts the exogenous operator most likely sets in the
-        next step, evaluated on the current knowledge (most-likely mode: the
-        world as it most likely is once the plan starts)."""
+        next step, evaluated on the current knowledge (exogenous="most-likely":
+        the world as it most likely is once the plan starts)."""
         exo = self.kb.operator(EXOGENOUS)
         out: dict[tuple[str, tuple[str, ...]], bool] = {}
 
@@ -696,7 +725,7 @@ class _Writer:
         ]
 
     def exogenous_actions(self) -> list[str]:
-        """All-outcomes mode: each outcome of each exogenous draw as an action
+        """exogenous="outcomes": each outcome of each exogenous draw as an action
         of cost 0, so that the planner may count on any outcome."""
         exo = self.kb.operator(EXOGENOUS)
         out = []
@@ -727,7 +756,7 @@ class _Writer:
 
     def init(self) -> list[str]:
         out = []
-        world = self.world_step() if self.mode == "most-likely" else {}
+        world = self.world_step() if self.exogenous == "most-likely" else {}
         for p in self.stored.values():
             if p.range in ("int", "real"):
                 continue
@@ -741,6 +770,17 @@ class _Writer:
                 else:
                     out.append(f"({' '.join([self.pred(p.name), *names, self.obj(str(v))])})")
         return out + self.static_facts
+
+
+def reward_terms(e: A.Expr) -> list[A.Expr]:
+    """The additive terms of a reward, each with its sign (`a - b` gives a
+    and -b)."""
+    if isinstance(e, A.Binary) and e.op in ("+", "-"):
+        right = reward_terms(e.right)
+        if e.op == "-":
+            right = [A.Unary("-", t, t.loc) for t in right]
+        return [*reward_terms(e.left), *right]
+    return [e]
 
 
 # ------------------------------------------------------- effect normal form
@@ -802,9 +842,11 @@ def _own_type(model: Any, member: str) -> str:
     return best
 
 
-def to_pddl(kb: KnowledgeBase, mode: str = "most-likely") -> tuple[str, str]:
+def to_pddl(
+    kb: KnowledgeBase, mode: str = "most-likely", exogenous: str = "current"
+) -> tuple[str, str]:
     """(domain, problem) PDDL texts of `kb` (see the module's docstring)."""
-    return _Writer(kb, mode).write()
+    return _Writer(kb, mode, exogenous).write()
 
 
 __all__ = ["MODES", "to_pddl"]

@@ -142,8 +142,11 @@ def register_kb(server: JsonlServer, kb: KnowledgeBase) -> None:
 
     @method("kb.pddl")
     def pddl(params: dict[str, Any], conn: Connection) -> Any:
-        """a PDDL domain and problem by determinisation: {mode?} (most-likely, all-outcomes)"""
-        domain, problem = kb.to_pddl(_param(params, "mode", str, "most-likely"))
+        """a PDDL domain and problem by determinisation: {mode?, exogenous?}"""
+        domain, problem = kb.to_pddl(
+            _param(params, "mode", str, "most-likely"),
+            _param(params, "exogenous", str, "current"),
+        )
         return {"domain": domain, "problem": problem}
 
     # -- state

@@ -38,8 +38,18 @@ def test_the_pddl_parses_with_an_independent_parser(
         assert p.domain_name == kb.domain_name()  # type: ignore[attr-defined]
 
 
+def parsed_with(kb: KnowledgeBase, mode: str, exogenous: str) -> tuple[str, str]:
+    domain, problem = kb.to_pddl(mode, exogenous)
+    DomainParser()(domain)
+    ProblemParser()(problem)
+    return domain, problem
+
+
 def test_most_likely_pddl_of_the_print_domain(turtlebot: KnowledgeBase) -> None:
     d, p, domain, problem = parsed(turtlebot, "most-likely")
+    # by default the world's fluents keep their current values: nobody is seen
+    assert "(somebody_at" not in problem
+    domain, problem = parsed_with(turtlebot, "most-likely", "most-likely")
     assert sorted(a.name for a in d.actions) == sorted(  # type: ignore[attr-defined]
         o.name for o in turtlebot.operators() if o.name != "exogenous"
     )
@@ -55,8 +65,8 @@ def test_most_likely_pddl_of_the_print_domain(turtlebot: KnowledgeBase) -> None:
 
 
 def test_all_outcomes_splits_each_draw(warehouse: KnowledgeBase) -> None:
-    d, _, domain, _ = parsed(warehouse, "all-outcomes")
-    names = {a.name for a in d.actions}  # type: ignore[attr-defined]
+    domain, _ = parsed_with(warehouse, "all-outcomes", "outcomes")
+    names = set(re.findall(r"\(:action (\S+)", domain))
     assert {"pick__o1_1", "pick__o1_2", "pick__o2_1", "pick__o2_2"} <= names
     assert {"charge__o1", "charge__o2", "exogenous__dirty__o1", "exogenous__dirty__o2"} <= names
     assert "; not written: move: the condition battery > 0 cannot be written: dropped" in domain
@@ -72,6 +82,21 @@ def test_costs_follow_the_non_fluents(turtlebot: KnowledgeBase) -> None:
     assert "(ippc-cost-goto_waypoint-50 kenny dan-office coffee)" in problem
 
 
+def test_costs_are_each_actions_own_reward_terms(warehouse: KnowledgeBase) -> None:
+    # reward = -MOVE-COST * moves + 10 * boxes at their targets: a move costs
+    # MOVE-COST (1.0: 100 hundredths), the rest nothing (a reward is no cost)
+    domain, _ = parsed_with(warehouse, "most-likely", "current")
+    costs = dict(
+        re.findall(
+            r"\(:action (\S+)[^:]*:parameters[^\n]*\n[^\n]*\n.*?"
+            r"\(increase \(total-cost\) (\d+)\)",
+            domain,
+            flags=re.S,
+        )
+    )
+    assert costs == {"move": "100", "pick": "0", "drop": "0", "charge": "0"}
+
+
 def test_without_a_goal_there_is_no_pddl() -> None:
     model = next(iter(load(KB_DATA.parents[2] / "domains" / "corridor_enum").values()))
     with pytest.raises(KBError, match="has no goal") as err:
@@ -79,6 +104,8 @@ def test_without_a_goal_there_is_no_pddl() -> None:
     assert err.value.code == "no-goal"
     with pytest.raises(KBError, match="unknown determinisation"):
         KnowledgeBase.from_model(model).to_pddl("best-case")
+    with pytest.raises(KBError, match="unknown exogenous"):
+        KnowledgeBase.from_model(model).to_pddl("most-likely", "frozen")
 
 
 def fast_downward() -> Path:
@@ -87,11 +114,16 @@ def fast_downward() -> Path:
     return Path(next(iter(spec.submodule_search_locations))) / "downward" / "fast-downward.py"
 
 
-@pytest.mark.parametrize("mode", ["most-likely", "all-outcomes"])
+@pytest.mark.parametrize(
+    ("mode", "exogenous"),
+    [("most-likely", "most-likely"), ("all-outcomes", "outcomes"), ("most-likely", "current")],
+)
 def test_fast_downward_solves_the_print_domain(
-    turtlebot: KnowledgeBase, tmp_path: Path, mode: str
+    turtlebot: KnowledgeBase, tmp_path: Path, mode: str, exogenous: str
 ) -> None:
-    domain, problem = turtlebot.to_pddl(mode)
+    if exogenous == "current":  # somebody is seen at the far printer, as sensing says
+        turtlebot.apply([Update.add("somebody_at", "printer-corridor")], source="sensing")
+    domain, problem = turtlebot.to_pddl(mode, exogenous)
     (tmp_path / "domain.pddl").write_text(domain)
     (tmp_path / "problem.pddl").write_text(problem)
     plan_file = tmp_path / "plan.txt"
