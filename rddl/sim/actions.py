@@ -2,21 +2,24 @@
 
 Owns the action side of a `Simulator` (its methods of the same names call
 these): `random_actions` picks random legal actions for every state of a
-batch as rddlsim's RandomConcurrentPolicy does (each grounding in a random
-order, `_Order`, taken on a coin flip if the actions stay legal, at most
-max-nondef-actions and `RANDOM_MAX_CONCURRENT` of them), testing a window
-of candidates per state in one batched legality check (`_take_legal`);
-`legal_actions` enumerates every legal joint action of a boolean action
-space in one state.
+batch in the manner of rddlsim's RandomConcurrentPolicy (each fluent in
+declaration order, each grounding in a random order, `_Order`, taken on a
+coin flip if the actions stay legal, at most max-nondef-actions and
+`RANDOM_MAX_CONCURRENT` of them; rddlsim's exact policy, with its order
+and its random numbers, is `ippc.planners.rddlsim_random`), testing a
+window of candidates per state in one batched legality check
+(`_take_legal`), and where that finds nothing legal (noop illegal, the
+legal actions needing several groundings at once) draws uniformly from the
+legal joint actions (`ippc.rddl.legal`); `legal_actions` enumerates every
+legal joint action of one state with `ippc.rddl.legal`.
 
 May call the simulator's public methods (`noop`, `check_actions`) and its
-model, action defaults and codes; nothing of the compiler.
+model, action defaults and codes, and `ippc.rddl.legal`; nothing of the
+compiler.
 """
 
 from __future__ import annotations
 
-import itertools
-import math
 from collections.abc import Iterable
 from typing import TYPE_CHECKING, Any
 
@@ -82,13 +85,15 @@ def _random_value(sim: Simulator, p: PVariable, rng: np.random.Generator, n: int
 
 
 def random_actions(sim: Simulator, state: State, rng: np.random.Generator) -> dict[str, Array]:
-    """Random legal actions for every state of the batch, as rddlsim's
-    RandomConcurrentPolicy picks them: each action fluent in turn, its
+    """Random legal actions for every state of the batch, in the manner of
+    rddlsim's RandomConcurrentPolicy: each action fluent in turn, its
     groundings in a random order; each grounding is taken with
     probability 1/2 (with a random non-default value) and kept only if
     the constraints and max-nondef-actions still hold; at most
     max-nondef-actions are taken, and (as rddlsim's policy does, for
-    max-nondef-actions = pos-inf) at most `RANDOM_MAX_CONCURRENT`."""
+    max-nondef-actions = pos-inf) at most `RANDOM_MAX_CONCURRENT`. A state
+    where that leaves the actions illegal gets a uniform draw from its
+    legal joint actions (`ippc.rddl.legal`); `NoLegalAction` when it has none."""
     batch = state.batch
     actions = sim.noop(batch)
     limit = RANDOM_MAX_CONCURRENT
@@ -104,9 +109,19 @@ def random_actions(sim: Simulator, state: State, rng: np.random.Generator) -> di
         _take_legal(sim, state, actions, p, flat, order, values, candidates, taken, limit)
     ok = sim.check_actions(state, actions)
     if not ok.all():
-        raise SimulationError(
-            f"no legal action in state {int(np.argmin(ok))} of the batch, not even noop"
-        )
+        # noop is illegal there and the coin flips found nothing (ChromaticDice's
+        # five dice at once): a uniform draw from what the constraints allow
+        from ..legal import LegalActionsUnsupported, solver_for
+
+        bad = np.flatnonzero(~ok)
+        try:
+            fill = solver_for(sim).sample_batch(state[bad], rng)
+        except LegalActionsUnsupported:
+            raise SimulationError(
+                f"no legal action in state {int(bad[0])} of the batch, not even noop"
+            ) from None
+        for k, v in fill.items():
+            actions[k][bad] = v
     return actions
 
 
@@ -232,31 +247,10 @@ def _random_unconstrained(
 def legal_actions(
     sim: Simulator, state: State, index: int = 0, limit: int = 100_000
 ) -> dict[str, Array]:
-    """Every legal joint action of a boolean action space in one state,
-    stacked along the batch axis (noop first when legal): all sets of at
-    most max-nondef-actions groundings set to their non-default value,
-    filtered by the preconditions. Raises if there are more than `limit`."""
-    grounds = _groundings(sim)
-    for p, _ in grounds:
-        if p.range != "bool":
-            raise SimulationError(
-                f"legal_actions enumerates boolean actions only; '{p.name}' is {p.range}"
-            )
-    k_max = (
-        len(grounds)
-        if sim.model.max_nondef_actions is None
-        else min(sim.model.max_nondef_actions, len(grounds))
-    )
-    count = sum(math.comb(len(grounds), k) for k in range(k_max + 1))
-    if count > limit:
-        raise SimulationError(f"{count} candidate joint actions, more than the limit of {limit}")
-    combos = [c for k in range(k_max + 1) for c in itertools.combinations(range(len(grounds)), k)]
-    actions = sim.noop(len(combos))
-    for row, combo in enumerate(combos):
-        for g in combo:
-            p, idx = grounds[g]
-            actions[p.name][(row, *idx)] = not sim._defaults[p.name][idx]
-    one = state[index]
-    many = one[[0] * len(combos)]
-    ok = sim.check_actions(many, actions)
-    return {k: v[ok] for k, v in actions.items()}
+    """Every legal joint action in one state, stacked along the batch axis
+    (noop first when legal), found by `ippc.rddl.legal` (bool, enum and int
+    action fluents). Raises `NoLegalAction` when there is none and
+    `TooManyActions` when there are more than `limit`."""
+    from ..legal import solver_for
+
+    return solver_for(sim).enumerate(state, index, limit)

@@ -351,15 +351,16 @@ class Simulator:
     # -- action choice (see `actions`) --------------------------------
 
     def random_actions(self, state: State, rng: np.random.Generator) -> dict[str, Array]:
-        """Random legal actions for every state of the batch, as rddlsim's
-        RandomConcurrentPolicy picks them (at most max-nondef-actions and
-        `RANDOM_MAX_CONCURRENT`; see `sim.actions.random_actions`)."""
+        """Random legal actions for every state of the batch, in the manner of
+        rddlsim's RandomConcurrentPolicy (at most max-nondef-actions and
+        `RANDOM_MAX_CONCURRENT`), with a uniform legal draw where that finds
+        nothing (see `sim.actions.random_actions`)."""
         return random_actions(self, state, rng)
 
     def legal_actions(self, state: State, index: int = 0, limit: int = 100_000) -> dict[str, Array]:
-        """Every legal joint action of a boolean action space in the state
-        at `index`, stacked along the batch axis, noop first when legal (at
-        most `limit` candidates; see `sim.actions.legal_actions`)."""
+        """Every legal joint action of the state at `index` (bool, enum and
+        int action fluents), stacked along the batch axis, noop first when
+        legal; `TooManyActions` above `limit` (see `ippc.rddl.legal`)."""
         return legal_actions(self, state, index, limit)
 
     # -- wire form ---------------------------------------------------
