@@ -7,7 +7,8 @@ points of the group `ippc.planners`, ippc's own built-ins among them::
     from ippc.planners import make_planner
     planner = make_planner("random", {"seed": "1"})
 
-Built-ins: `noop` (`NoopPlanner`), `random` (`RandomPlanner`), `mcts`, `replan`,
+Built-ins: `noop` (`NoopPlanner`), `random` (`RandomPlanner`, rddlsim's
+RandomConcurrentPolicy), `uniform` (`UniformPlanner`), `mcts`, `replan`,
 `exact` (value iteration on small instances), `prost`
 (`ProstPlanner`, an `ExternalPlanner` that runs a PROST binary).
 """
@@ -28,7 +29,7 @@ from .base import (
     make_planner,
     planner_names,
 )
-from .basic import NoopPlanner, RandomPlanner
+from .basic import NoopPlanner, RandomPlanner, UniformPlanner
 from .prost import DEFAULT_CONFIG, ProstOutput, ProstPlanner, parse_prost_output
 
 __all__ = [
@@ -45,6 +46,7 @@ __all__ = [
     "ProstPlanner",
     "RandomPlanner",
     "SessionInfo",
+    "UniformPlanner",
     "WireFluent",
     "find_planner",
     "make_planner",

@@ -47,6 +47,7 @@ ENTRY_POINT_GROUP = "ippc.planners"
 BUILTIN_PLANNERS: dict[str, str] = {
     "noop": "ippc.planners.basic:NoopPlanner",
     "random": "ippc.planners.basic:RandomPlanner",
+    "uniform": "ippc.planners.basic:UniformPlanner",
     "prost": "ippc.planners.prost:ProstPlanner",
     "mcts": "ippc.planners.mcts:MCTSPlanner",
     "replan": "ippc.planners.replan:ReplanPlanner",

@@ -1,14 +1,20 @@
-"""The two baseline planners: `noop` and `random`."""
+"""The baseline planners: `noop`, `random` (rddlsim's RandomConcurrentPolicy)
+and `uniform` (a uniformly drawn legal joint action)."""
 
 from __future__ import annotations
 
+import logging
 from typing import ClassVar
 
 import numpy as np
 
-from ..rddl.simulator import SimulationError, State
+from ..rddl.legal import LegalActions, solver_for
+from ..rddl.simulator import SimulationError, Simulator, State
 from ..rddl.wire import WireCodec
 from .base import Observation, Planner, PlannerError, SessionInfo, WireFluent
+from .rddlsim_random import RandomConcurrentPolicy, Stuck
+
+log = logging.getLogger(__name__)
 
 
 class NoopPlanner(Planner):
@@ -22,49 +28,123 @@ class NoopPlanner(Planner):
 
 
 class RandomPlanner(Planner):
-    """Random legal joint actions, as rddlsim's RandomConcurrentPolicy.
+    """rddlsim's RandomConcurrentPolicy, choice for choice (the IPPC random
+    baseline; see `ippc.planners.rddlsim_random`).
 
-    Each turn, every action fluent in turn has its groundings tried in a
-    random order; each is taken with probability 1/2 (with a random
-    non-default value) and kept only if max-nondef-actions, the action
-    preconditions and the state-action constraints still hold in the
-    current state (`Simulator.random_actions`).
+    With the same seed and the same states it sends what rddlsim's Java
+    client sends with `rddl.policy.RandomConcurrentPolicy`, byte for byte:
+    the action fluents in rddlsim's order, each fluent's groundings in a
+    random order, each taken on a coin flip if the actions stay legal, at
+    most min(20, max-nondef-actions) of them, drawn from commons-math3's
+    Well19937c generator. One generator for the whole session, seeded with
+    the option `seed`, else the client's `--seed`, else 0 (the Java
+    client's default).
 
-    POMDPs: the planner does not see the state, so it checks the constraints
-    against the instance's initial state instead. For domains whose
-    preconditions do not depend on the state (the usual case) the actions
-    are legal everywhere; otherwise the server may refuse some of them.
+    Where rddlsim's policy gives up (no action found and noop illegal:
+    "No actions satisfied state constraints, not even noop!", e.g. when a
+    legal action needs several groundings at once) the planner raises
+    `PlannerError` with that message and the session ends, as the Java
+    client's does; with `when_stuck=legal` it sends a uniformly drawn legal
+    joint action instead (`ippc.rddl.legal`) and goes on.
 
-    The generator is seeded once per session from the option `seed`, else
-    from the session's seed (`--seed`), else from fresh entropy.
+    POMDPs: no actions in a turn without observations (as Java); else the
+    constraints are checked against the initial state, as the Java client's
+    own state never leaves it.
     """
 
     name: ClassVar[str] = "random"
     options: ClassVar[dict[str, str]] = {
-        "seed": "integer seed for the random choices (default: the client's --seed, else unseeded)",
+        "seed": "integer seed of the Java generator (default: the client's --seed, else 0 as "
+        "rddlsim's client)",
+        "when_stuck": "stop (end the session where rddlsim's policy gives up, the default) or "
+        "legal (send a uniformly drawn legal joint action there)",
     }
 
     def __init__(self, **options: str) -> None:
         super().__init__(**options)
         self.seed: int | None = self.int_option("seed")
-        self.rng: np.random.Generator | None = None
-        self._codec: WireCodec | None = None
+        stuck = (self.str_option("when_stuck", "stop") or "stop").strip().lower()
+        if stuck not in ("stop", "legal"):
+            raise self._option_error("when_stuck", stuck, "one of stop, legal")
+        self.when_stuck = stuck
+        self.policy: RandomConcurrentPolicy | None = None
+        self._rng: np.random.Generator | None = None
         self._initial: State | None = None
+        self._codec: WireCodec | None = None
 
     def start_session(self, session: SessionInfo) -> None:
         super().start_session(session)
-        seed = self.seed if self.seed is not None else session.seed
-        self.rng = np.random.default_rng(seed)
-        self._codec = WireCodec(session.simulator)
+        seed = self.seed if self.seed is not None else (session.seed or 0)
+        self.policy = RandomConcurrentPolicy(session.simulator, seed)
+        self._rng = np.random.default_rng(seed)
         self._initial = session.simulator.initial_state(1)
+        self._codec = WireCodec(session.simulator)
 
     def act(self, obs: Observation) -> list[WireFluent]:
-        if self.session is None or self.rng is None or self._codec is None:
+        if self.session is None or self.policy is None or self._rng is None:
             raise PlannerError("random: act() called before start_session()")
-        state = obs.state if obs.state is not None else self._initial
-        assert state is not None
+        if obs.state is not None:
+            state: State | None = obs.state
+        else:
+            state = None if obs.fluents is None else self._initial
         try:
-            arrays = self.session.simulator.random_actions(state, self.rng)
-        except SimulationError as err:
-            raise PlannerError(f"random: no legal action to choose: {err}") from err
-        return self._codec.actions(arrays, index=0)
+            return self.policy.choose(state)
+        except Stuck as err:
+            if self.when_stuck == "stop" or state is None:
+                raise PlannerError(
+                    f"random: turn {obs.turn}: {err} (rddlsim's RandomConcurrentPolicy stops "
+                    "here; option when_stuck=legal sends a legal joint action instead)"
+                ) from None
+            log.warning(
+                "random: turn %d: %s; sending a uniformly drawn legal action", obs.turn, err
+            )
+        assert self._codec is not None
+        return _uniform_action(self.session.simulator, self._codec, state, self._rng, "random")
+
+
+class UniformPlanner(Planner):
+    """A joint action drawn uniformly from the legal ones, every turn
+    (`ippc.rddl.legal`): a random baseline that acts wherever anything is
+    legal. POMDPs: legality is judged in the initial state.
+
+    The generator is seeded from the option `seed`, else the client's
+    `--seed`, else fresh entropy."""
+
+    name: ClassVar[str] = "uniform"
+    options: ClassVar[dict[str, str]] = {
+        "seed": "integer seed (default: the client's --seed, else unseeded)",
+    }
+
+    def __init__(self, **options: str) -> None:
+        super().__init__(**options)
+        self.seed: int | None = self.int_option("seed")
+        self._rng: np.random.Generator | None = None
+        self._initial: State | None = None
+        self._codec: WireCodec | None = None
+
+    def start_session(self, session: SessionInfo) -> None:
+        super().start_session(session)
+        self._rng = np.random.default_rng(self.seed if self.seed is not None else session.seed)
+        self._initial = session.simulator.initial_state(1)
+        self._codec = WireCodec(session.simulator)
+
+    def act(self, obs: Observation) -> list[WireFluent]:
+        if self.session is None or self._rng is None or self._initial is None:
+            raise PlannerError("uniform: act() called before start_session()")
+        state = obs.state if obs.state is not None else self._initial
+        assert self._codec is not None
+        return _uniform_action(self.session.simulator, self._codec, state, self._rng, "uniform")
+
+
+def _uniform_action(
+    sim: Simulator, codec: WireCodec, state: State, rng: np.random.Generator, who: str
+) -> list[WireFluent]:
+    """One uniformly drawn legal joint action of `state`, on the wire."""
+    try:
+        if LegalActions.supports(sim):
+            arrays = solver_for(sim).sample(state, rng, 1)
+        else:  # real-valued actions: coin flips (and their fallback)
+            arrays = sim.random_actions(state, rng)
+    except SimulationError as err:
+        raise PlannerError(f"{who}: {err}") from None
+    return codec.actions(arrays, index=0)

@@ -88,6 +88,17 @@ def rddlsim_order(model: Model, kind: str) -> list[PVariable]:
     return [model.pvariables[n] for n in _hashmap_order(of_kind)]
 
 
+def rddlsim_action_order(model: Model) -> list[PVariable]:
+    """The action fluents in the order rddlsim's `State._alActionNames`
+    holds them (and its random policy tries them): the iteration order of
+    the domain's HashMap of all pvariables, filtered to the actions (a
+    plain list, without the second HashMap of `rddlsim_order`)."""
+    declared = [p.name for p in model.pvariables.values()]
+    return [
+        model.pvariables[n] for n in _hashmap_order(declared) if model.pvariables[n].kind == ACTION
+    ]
+
+
 def partially_observed(model: Model) -> bool:
     """Whether rddlsim serves observations rather than states: the domain
     declares the `partially-observed` requirement (as rddlsim decides)."""

@@ -3,6 +3,7 @@ actions are legal (as the server checks them), vary, and are reproducible."""
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from pathlib import Path
 
@@ -145,8 +146,10 @@ def test_random_is_reproducible(models: dict[str, Model]) -> None:
 @pytest.mark.parametrize("name", POMDPS)
 def test_random_pomdp_uses_the_initial_state(models: dict[str, Model], name: str) -> None:
     """No state in POMDP observations: the actions are chosen legal for the
-    instance's initial state; in these domains the constraints do not
-    depend on the state, so they are legal in the real state too."""
+    instance's initial state (the Java client's state never leaves it); in
+    these domains the constraints do not depend on the state, so they are
+    legal in the real state too. A turn without observations (the first)
+    gets no actions, as from the Java client."""
     model = models[name]
     info = session(model, seed=3)
     sim, codec = info.simulator, WireCodec(info.simulator)
@@ -156,8 +159,10 @@ def test_random_pomdp_uses_the_initial_state(models: dict[str, Model], name: str
     state = sim.initial_state(1)
     rng = np.random.default_rng(0)
     played = []
-    for turn in range(1, 21):
-        acts = planner.act(observe(codec, None, turn))
+    assert planner.act(observe(codec, None, 1)) == []
+    for turn in range(2, 22):
+        obs = dataclasses.replace(observe(codec, None, turn), fluents={})
+        acts = planner.act(obs)
         decoded = codec.actions_from(acts)
         assert codec.check(initial, decoded) is None
         state = sim.step(state, decoded.arrays, rng).next_state  # check=True: raises if illegal
@@ -171,7 +176,7 @@ def test_random_options_and_misuse(models: dict[str, Model]) -> None:
     ):
         RandomPlanner(seed="x1")
     with pytest.raises(
-        PlannerError, match=r"planner 'random' has no option 'sed' \(valid options: seed\)"
+        PlannerError, match=r"planner 'random' has no option 'sed' \(valid options: seed, when_stuck\)"
     ):
         RandomPlanner(sed="1")
     assert RandomPlanner(seed=" 42 ").seed == 42

@@ -84,7 +84,7 @@ def test_third_party_entry_point(monkeypatch: pytest.MonkeyPatch) -> None:
 
 def test_builtins_without_package_metadata(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setattr(importlib.metadata, "entry_points", entry_points_with(keep_builtins=False))
-    assert planner_names() == ["exact", "mcts", "noop", "prost", "random", "replan"]
+    assert planner_names() == ["exact", "mcts", "noop", "prost", "random", "replan", "uniform"]
     assert find_planner("random") is RandomPlanner
 
     def broken(**kw: Any) -> Any:
