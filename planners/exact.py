@@ -12,10 +12,13 @@ decisions of a round, regrets are an unbiased estimate of how far the
 planner's expected round reward lies below the optimum, with far less noise
 than the rewards themselves (the luck of the world cancels out).
 
-What can be solved: every state fluent boolean, every action fluent boolean
-(the joint actions are enumerated, as mcts enumerates them, and filtered by
+What can be solved: every state fluent boolean, no real-valued action
+fluent (boolean joint actions are enumerated when there are at most
+`max_actions` of them with at most max-nondef-actions set, and filtered by
 max-nondef-actions, the preconditions and the state-action constraints in
-each state), every state cpf built from Bernoulli (of a probability without draws),
+each state; otherwise, and for enum and int actions, the table holds the
+legal joint actions of the reachable states, from `ippc.rddl.legal`, grown
+and explored again until every reachable state's legal actions are in it), every state cpf built from Bernoulli (of a probability without draws),
 KronDelta and deterministic bool expressions with if, switch (on a subject
 without draws), ~, ^, |, =>, <=>, exists and forall, nested as deep as the
 domain likes (each draw node is an independent draw, so the probability
@@ -47,6 +50,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from ..rddl import ast as A
+from ..rddl.legal import LegalActions, NoLegalAction, TooManyActions, solver_for
 from ..rddl.loader import load_pair
 from ..rddl.model import Model
 from ..rddl.simulator import Simulator, State
@@ -156,8 +160,8 @@ def check_supported(model: Model) -> None:
     for p in model.pvariables.values():
         if p.kind == "state-fluent" and p.range != "bool":
             raise ExactUnsupported(f"state fluent {p.name} is {p.range}, not bool")
-        if p.kind == "action-fluent" and p.range != "bool":
-            raise ExactUnsupported(f"action fluent {p.name} is {p.range}, not bool")
+        if p.kind == "action-fluent" and p.range == "real":
+            raise ExactUnsupported(f"action fluent {p.name} is real-valued")
         if p.kind in ("interm-fluent", "derived-fluent"):
             cpf = model.cpfs.get(p.name)
             if cpf is not None and has_draws(cpf.expr):
@@ -334,8 +338,72 @@ def solve(
     if n_bits > 62:
         raise ExactUnsupported(f"{n_bits} state bits (at most 62 are encoded)")
     acts = enumerate_boolean(world, max_actions)
+    solver = None
     if acts is None:
-        raise ExactUnsupported(f"more than {max_actions} joint actions (or a non-bool action)")
+        # too many joint actions to list blindly (or non-bool ones): the legal
+        # ones of the states found, grown until every reachable state's are in
+        if not LegalActions.supports(world):
+            raise ExactUnsupported("real-valued action fluents")
+        solver = solver_for(world)
+        try:
+            acts = solver.enumerate(world.initial_state(1), limit=max_actions)
+        except (NoLegalAction, TooManyActions) as err:
+            raise ExactUnsupported(str(err)) from None
+    while True:
+        try:
+            return _explore(
+                model,
+                world,
+                sim,
+                shapes,
+                n_bits,
+                acts,
+                solver,
+                max_states,
+                max_branching,
+                max_transitions,
+            )
+        except _MoreActions as more:
+            acts = _union(world, acts, more.actions)
+            n = next(iter(acts.values())).shape[0]
+            if n > max_actions:
+                raise ExactUnsupported(f"more than {max_actions} legal joint actions") from None
+            log.debug("exact: %s: %d joint actions, exploring again", model.name, n)
+
+
+class _MoreActions(Exception):
+    """A reachable state has legal joint actions the table lacks."""
+
+    def __init__(self, actions: dict[str, Array]) -> None:
+        super().__init__("more legal joint actions")
+        self.actions = actions
+
+
+def _union(world: Simulator, a: dict[str, Array], b: dict[str, Array]) -> dict[str, Array]:
+    """The joint actions of `a`, then those of `b` not in `a`."""
+    names = [p.name for p in world.action_fluents]
+    seen = {_action_key(a, names, i) for i in range(next(iter(a.values())).shape[0])}
+    extra = [
+        i for i in range(next(iter(b.values())).shape[0]) if _action_key(b, names, i) not in seen
+    ]
+    return {k: np.concatenate([a[k], b[k][extra]]) for k in a}
+
+
+def _explore(
+    model: Model,
+    world: Simulator,
+    sim: Simulator,
+    shapes: dict[str, tuple[int, ...]],
+    n_bits: int,
+    acts: dict[str, Array],
+    solver: LegalActions | None,
+    max_states: int,
+    max_branching: int,
+    max_transitions: int,
+) -> Solution:
+    """Breadth-first exploration and value iteration with the joint actions
+    `acts`; with `solver`, raises `_MoreActions` when a reachable state has
+    legal joint actions that `acts` lacks."""
     n_act = next(iter(acts.values())).shape[0] if acts else 1
 
     def states_of(bits: Array) -> State:
@@ -351,6 +419,7 @@ def solve(
             col += w
         return State(values)
 
+    originals = [p for p in sim.state_fluents if not p.name.endswith(PROB_SUFFIX)]
     prob_names = [p.name + PROB_SUFFIX for p in originals]
     rng = np.random.default_rng(0)  # the original cpfs still draw; their values are unused
 
@@ -375,9 +444,13 @@ def solve(
             m = len(part)
             states = states_of(np.repeat(part, n_act, axis=0))
             batch_acts = {k: np.tile(v, (m,) + (1,) * (v.ndim - 1)) for k, v in acts.items()}
-            legal = world.check_actions(
-                State({p.name: states.values[p.name] for p in world.state_fluents}), batch_acts
-            )
+            world_states = State({p.name: states.values[p.name] for p in world.state_fluents})
+            legal = world.check_actions(world_states, batch_acts)
+            if solver is not None:
+                found = legal.reshape(m, n_act).sum(axis=1)
+                for i in range(m):
+                    if solver.count(world_states, i * n_act) > found[i]:
+                        raise _MoreActions(solver.enumerate(world_states, i * n_act))
             out = sim.step(states, batch_acts, rng, check=False)
             probs = np.concatenate(
                 [out.next_state.values[k].reshape(m * n_act, -1) for k in prob_names], axis=1

@@ -37,17 +37,19 @@ Theory of operation.
   model is deterministic and stationary, so the rest is that step's reward
   again), which in most domains happens within a few steps.
 
-* Legal actions only. The candidate joint actions are enumerated once per
-  session (noop, then every set of 1, 2, ... non-default action groundings
-  up to max-nondef-actions, for as long as there are at most `max_actions`
-  of them); each expansion keeps the ones that `Simulator.check_actions`
-  finds legal in the node's state (max-nondef-actions, action
-  preconditions, state-action constraints). Boolean actions are flipped;
-  an enum action tries every other value; int and real actions try their
-  default +- 1 (a coarse discretisation: this planner is for boolean and
-  enum action spaces first). When the enumeration stops short of
-  max-nondef-actions, each expansion adds one random legal joint action
-  (`Simulator.random_actions`) per node.
+* Legal actions only. The children of a node are its state's legal joint
+  actions (`ippc.rddl.legal`: max-nondef-actions, action preconditions,
+  state-action constraints; bool, enum and int action fluents): all of them
+  when there are at most `max_actions`, else noop (when legal) and a
+  uniform sample of `max_actions` (the search is then not exhaustive), so
+  ChromaticDice's "all five dice at once" is a child like any other. For
+  real-valued action spaces, which cannot be enumerated, the candidates are
+  enumerated once per session (noop, then every set of 1, 2, ...
+  non-default groundings up to max-nondef-actions, each real action at its
+  default +- 1, for as long as there are at most `max_actions`), each
+  expansion keeps the ones `Simulator.check_actions` finds legal, and when
+  the enumeration stops short each expansion adds one random legal joint
+  action (`Simulator.random_actions`) per node.
 
 * Replanning. The plan predicts the state of every turn. Each turn the
   observed state is compared with the prediction (exactly for bool, int and
@@ -97,6 +99,7 @@ from typing import ClassVar
 
 import numpy as np
 
+from ..rddl.legal import LegalActions, NoLegalAction, solver_for
 from ..rddl.simulator import SimulationError, Simulator, State
 from ..rddl.wire import WireCodec
 from .base import Observation, Planner, PlannerError, SessionInfo, WireFluent
@@ -277,6 +280,32 @@ class SearchProblem:
     outcomes: int = 0  # sampled outcomes per action (all-outcomes); 0: most-likely only
     expand: int = DEFAULT_EXPAND
     max_nodes: int = MAX_NODES
+    solver: LegalActions | None = None  # each node's own legal joint actions (else `candidates`)
+    max_actions: int = DEFAULT_MAX_ACTIONS
+
+    def legal_children(self, parents: State) -> tuple[State, Actions, Array, bool]:
+        """The legal joint actions of every parent, stacked, with their
+        parents' states and indices, from the solver (at most `max_actions`
+        each: all of them, else noop and a uniform sample), and whether any
+        parent had more than that."""
+        assert self.solver is not None
+        per: list[Actions] = []
+        owner: list[Array] = []
+        cut = False
+        for i in range(parents.batch):
+            try:
+                acts = self.solver.candidates(parents, self.rng, self.max_actions, i)
+            except NoLegalAction:
+                continue  # a dead end: no children
+            space = self.solver.space(parents, i)
+            cut = cut or not (space.complete and space.count <= self.max_actions)
+            per.append(acts)
+            owner.append(np.full(next(iter(acts.values())).shape[0], i))
+        if not per:
+            empty = np.zeros(0, dtype=np.int64)
+            return parents[empty], {k: v[:0] for k, v in self.world.noop(1).items()}, empty, cut
+        rows = np.concatenate(owner)
+        return parents[rows], _concat_actions(per), rows, cut
 
     @property
     def n_candidates(self) -> int:
@@ -414,6 +443,7 @@ def search(
     per_round = 0.0  # the slowest expansion round so far
     n_cand = problem.n_candidates
     cut = False
+    sampled = False  # some node had more legal joint actions than max_actions
     while heap:
         now = time.monotonic()
         if expansions and now + 2.0 * per_round > deadline:
@@ -433,14 +463,21 @@ def search(
             continue
         parents = _gather([batches[where[n][0]][0] for n in chosen], [where[n][1] for n in chosen])
         m = len(chosen)
-        # every candidate in every chosen node, the legal ones kept
-        states = parents[np.repeat(np.arange(m), n_cand)]
-        acts = {k: np.tile(v, (m,) + (1,) * (v.ndim - 1)) for k, v in problem.candidates.items()}
-        owner = np.repeat(np.arange(m), n_cand)
-        legal = np.asarray(sim.check_actions(states, acts), dtype=bool)
-        rows = np.nonzero(legal)[0]
-        states, acts, owner = states[rows], _take(acts, rows), owner[rows]
-        if problem.truncated:
+        if problem.solver is not None:
+            # each node's own legal joint actions
+            states, acts, owner, cut_here = problem.legal_children(parents)
+            sampled = sampled or cut_here
+        else:
+            # every candidate in every chosen node, the legal ones kept
+            states = parents[np.repeat(np.arange(m), n_cand)]
+            acts = {
+                k: np.tile(v, (m,) + (1,) * (v.ndim - 1)) for k, v in problem.candidates.items()
+            }
+            owner = np.repeat(np.arange(m), n_cand)
+            legal = np.asarray(problem.world.check_actions(states, acts), dtype=bool)
+            rows = np.nonzero(legal)[0]
+            states, acts, owner = states[rows], _take(acts, rows), owner[rows]
+        if problem.solver is None and problem.truncated:
             try:
                 extra = problem.world.random_actions(parents, rng)
             except SimulationError:
@@ -512,7 +549,8 @@ def search(
                 if kdepth[j] < depth and not done[i]:
                     heapq.heappush(heap, (-q[node], int(kdepth[j]), node))
         per_round = max(per_round, time.monotonic() - started)
-    complete = not cut and not problem.truncated and problem.outcomes == 0
+    truncated = sampled if problem.solver is not None else problem.truncated
+    complete = not cut and not truncated and problem.outcomes == 0
     # the plan: the path to the best node, then noop to the depth
     steps: list[PlanStep] = []
     if best >= 0:
@@ -631,7 +669,11 @@ class ReplanPlanner(Planner):
             det = Simulator(determinise(session.model))
         except SimulationError as err:
             raise PlannerError(f"replan: cannot simulate the determinised model: {err}") from err
-        candidates, truncated = joint_actions(world, self.max_actions)
+        solver = solver_for(world) if LegalActions.supports(world) else None
+        if solver is None:
+            candidates, truncated = joint_actions(world, self.max_actions)
+        else:  # every node asks the solver for its own
+            candidates, truncated = world.noop(1), False
         seed = self.seed if self.seed is not None else session.seed
         self.problem = SearchProblem(
             sim=det,
@@ -642,13 +684,17 @@ class ReplanPlanner(Planner):
             rng=np.random.default_rng(seed),
             outcomes=self.outcomes,
             expand=self.expand,
+            solver=solver,
+            max_actions=self.max_actions,
         )
         self._codec = WireCodec(world)
         log.info(
-            "replan: %s, %s determinisation, %d candidate joint actions%s, built in %.3f s",
+            "replan: %s, %s determinisation, %s%s, built in %.3f s",
             session.instance,
             self.determinisation,
-            self.problem.n_candidates,
+            "legal joint actions per node"
+            if solver is not None
+            else f"{self.problem.n_candidates} candidate joint actions",
             " (truncated: plus random ones)" if truncated else "",
             time.monotonic() - t0,
         )
@@ -784,6 +830,13 @@ class ReplanPlanner(Planner):
         noop = world.noop(1)
         if bool(world.check_actions(state, noop)[0]):
             return None
+        if self.problem.solver is not None:
+            try:
+                some = self.problem.solver.candidates(state, self.problem.rng, 1)
+            except NoLegalAction as err:
+                log.warning("replan: turn %d: %s; sending noop", obs.turn, err)
+                return None
+            return _take(some, [0])
         cands = self.problem.candidates
         n = self.problem.n_candidates
         legal = np.nonzero(world.check_actions(state[[0] * n], cands))[0]

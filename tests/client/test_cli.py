@@ -268,7 +268,11 @@ def test_exact_planner_from_the_command_line(server: Server, tmp_path: Path) -> 
     [
         ("foo", 2, "Invalid value for --planner-option: 'foo' is not KEY=VALUE"),
         ("=1", 2, "Invalid value for --planner-option: '=1' is not KEY=VALUE"),
-        ("foo=1", 1, "Error: planner 'random' has no option 'foo' (valid options: seed)"),
+        (
+            "foo=1",
+            1,
+            "Error: planner 'random' has no option 'foo' (valid options: seed, when_stuck)",
+        ),
         ("seed=abc", 1, "Error: planner 'random': option 'seed' must be an integer, got 'abc'"),
     ],
 )

@@ -176,7 +176,8 @@ def test_random_options_and_misuse(models: dict[str, Model]) -> None:
     ):
         RandomPlanner(seed="x1")
     with pytest.raises(
-        PlannerError, match=r"planner 'random' has no option 'sed' \(valid options: seed, when_stuck\)"
+        PlannerError,
+        match=r"planner 'random' has no option 'sed' \(valid options: seed, when_stuck\)",
     ):
         RandomPlanner(sed="1")
     assert RandomPlanner(seed=" 42 ").seed == 42

@@ -233,3 +233,48 @@ def test_composed_probabilities_match_the_simulator_draws(tmp_path: Path) -> Non
         sampled = nxt[name]
         for half in (slice(0, n // 2), slice(n // 2, n)):
             assert abs(sampled[half].mean() - p[half].mean()) < 0.01, name
+
+
+LAMPS = """
+domain lamps {
+    requirements = { concurrent, constrained-state };
+    types { lamp : object; };
+    pvariables {
+        lit(lamp) : { state-fluent, bool, default = false };
+        press(lamp) : { action-fluent, bool, default = false };
+    };
+    cpfs {
+        lit'(?l) = if (press(?l)) then Bernoulli(0.5) else KronDelta(lit(?l));
+    };
+    reward = sum_{?l : lamp} lit(?l);
+    action-preconditions {
+        (sum_{?l : lamp} press(?l)) <= 1;
+        forall_{?l : lamp} [press(?l) => ~lit(?l)];
+    };
+}
+non-fluents lamps_nf { domain = lamps; objects { lamp : {a, b, c}; }; }
+instance lamps_inst {
+    domain = lamps;
+    non-fluents = lamps_nf;
+    max-nondef-actions = pos-inf;
+    horizon = 4;
+    discount = 1.0;
+}
+"""
+
+
+def test_legal_actions_when_the_joint_actions_are_too_many_to_list(tmp_path: Path) -> None:
+    """Three lamps, max-nondef-actions pos-inf: 8 joint actions, of which
+    noop and the three single presses can be legal. With max_actions 6
+    they cannot be listed blindly; the table then holds the legal ones of
+    the reachable states (ippc.rddl.legal), and the values are the same."""
+    model = model_of(tmp_path, LAMPS, "lamps_inst")
+    full = solve(model)
+    legal_only = solve(model, max_actions=6)
+    assert next(iter(full.actions.values())).shape[0] == 8
+    assert next(iter(legal_only.actions.values())).shape[0] == 4
+    assert legal_only.initial_value == pytest.approx(full.initial_value)
+    for k in range(1, 5):
+        assert sorted(legal_only.v[k].tolist()) == pytest.approx(sorted(full.v[k].tolist()))
+    with pytest.raises(ExactUnsupported, match="more than the limit of 3"):
+        solve(model, max_actions=3)

@@ -200,8 +200,8 @@ def test_concurrent_actions_under_max_nondef_and_a_constraint(sims: dict[str, Si
     assert chosen(actions) == {("flip", ("s2",)), ("flip", ("s3",))}
     root = planner._root
     assert root is not None and len(root.acts) == 10  # 11 joint actions, {s2, s4} is illegal
-    assert planner._lib is not None
-    legal = planner._lib.take(root.acts)
+    assert planner.library is not None
+    legal = planner.library.take(root.acts)
     assert sim.check_actions(sim.initial_state(1)[[0] * 10], legal).all()
     # 3 steps of 8, approached from below (the rollouts' first estimate is lower)
     assert 22.0 < float(root.q().max()) <= 24.0
@@ -249,8 +249,8 @@ def test_enum_actions_are_sampled(sims: dict[str, Simulator]) -> None:
     actions = planner.act(observe(sim, sim.initial_state(1), 1))
     assert actions == [("step", (), "@right")]
     root = planner._root
-    assert root is not None and planner._lib is not None
-    values = set(planner._lib.take(root.acts)["step"].tolist())
+    assert root is not None and planner.library is not None
+    values = set(planner.library.take(root.acts)["step"].tolist())
     codes = {name: i for i, name in enumerate(sim.model.types["direction"].members)}
     assert values == {codes["@stay"], codes["@right"]}  # @left is illegal at pos 0
 
@@ -382,7 +382,8 @@ def test_registered_by_name() -> None:
     assert find_planner("mcts") is MCTSPlanner
     planner = make_planner("mcts", {"exploration": "1.5", "rollout-depth": "7", "batch": "32"})
     assert isinstance(planner, MCTSPlanner)
-    assert (planner.exploration, planner.rollout_depth, planner.batch) == (1.5, 7, 32)
+    st = planner.settings
+    assert (st.exploration, st.rollout_depth, st.batch) == (1.5, 7, 32)
     assert set(MCTSPlanner.options) >= {
         "time_per_step",
         "exploration",

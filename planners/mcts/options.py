@@ -1,0 +1,118 @@
+"""The options of `mcts`: their one-line help (what `--planner-option`
+accepts) and `Settings`, the typed values the other modules read.
+
+May call the planner's option readers (`ippc.planners.base`); nothing else.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from ..base import Planner
+
+ROLLOUT_POLICIES = ("random", "noop", "best")
+
+OPTIONS: dict[str, str] = {
+    "time_per_step": "seconds of search per turn (default: the client's deadline, the "
+    "session's remaining time spread over its remaining steps)",
+    "iterations": "search exactly this many waves per turn, whatever the time (for "
+    "reproducible runs; default: search until the deadline)",
+    "exploration": "UCB1 exploration constant, scaled by the node's largest |Q| (default 2)",
+    "rollout_depth": "steps of a leaf rollout (default 10; 0: to the lookahead limit)",
+    "depth": "lookahead limit of the search in steps (default 0: the steps left in the "
+    "round); the tree and the rollouts never look further",
+    "batch": "rows of a leaf-evaluation batch: trials per wave are chosen so that their "
+    "leaves' candidates x rollouts fill about this many (default 1024)",
+    "rollouts": "rollouts per candidate action of a new leaf (default 1)",
+    "extrapolate": "a rollout cut short by rollout_depth counts as its mean reward per "
+    "step over all the steps left (default yes; else as the rewards it saw)",
+    "trial_depth": "most decision levels a trial descends through nodes already in the "
+    "tree before it backs up the value of the node it reached (default 10; 0: no limit)",
+    "rollout_policy": "policy after a leaf's first action: random (uniform legal joint "
+    "actions), noop, or best (both; the better mean counts) (default best)",
+    "init_weight": "visits the rollout estimate of a new action counts as (default 1)",
+    "max_actions": "most candidate joint actions per decision node: all the legal ones when "
+    "there are no more, else noop and a uniform sample of the others (default 128)",
+    "enumerate_limit": "rollouts draw from the boolean joint actions enumerated once per "
+    "session when there are at most this many, else from rddlsim-style coin flips "
+    "(default 4096)",
+    "particles": "belief particles for POMDPs (default 64)",
+    "transpositions": "share one node between all paths that reach the same state with "
+    "the same steps left, within a turn and across the turns of a round (default yes)",
+    "bellman_outcomes": "back up an action from the current values of all its sampled "
+    "outcomes when it has at most this many (a partial Bellman backup), else from the one "
+    "sampled (default 64; 0: never)",
+    "max_nodes": "forget the tree (but the root) when it holds more decision nodes than "
+    "this (default 200000)",
+    "seed": "integer seed (default: the client's --seed, else unseeded)",
+}
+
+
+@dataclass(frozen=True)
+class Settings:
+    """Every option of `mcts`, typed, with its default."""
+
+    time_per_step: float | None = None
+    iterations: int | None = None
+    exploration: float = 2.0
+    rollout_depth: int = 10
+    depth: int = 0
+    batch: int = 1024
+    rollouts: int = 1
+    trial_depth: int = 10
+    extrapolate: bool = True
+    rollout_policy: str = "best"
+    init_weight: float = 1.0
+    max_actions: int = 128
+    enumerate_limit: int = 4096
+    particles: int = 64
+    transpositions: bool = True
+    max_nodes: int = 200_000
+    bellman_outcomes: int = 64
+    seed: int | None = None
+
+    @property
+    def modes(self) -> int:
+        """Rollouts per first action and rollout: 2 for `best` (random and noop)."""
+        return 2 if self.rollout_policy == "best" else 1
+
+
+def read_settings(planner: Planner) -> Settings:
+    """The settings from the planner's string options (a bad one raises
+    `PlannerError` naming it)."""
+
+    def whole(key: str, default: int, minimum: int) -> int:
+        value = planner.int_option(key, default, minimum=minimum)
+        assert value is not None
+        return value
+
+    def number(key: str, default: float, minimum: float = 0.0) -> float:
+        value = planner.float_option(key, default, minimum=minimum)
+        assert value is not None
+        return value
+
+    policy = (planner.str_option("rollout_policy", "best") or "best").strip().lower()
+    if policy not in ROLLOUT_POLICIES:
+        raise planner._option_error(
+            "rollout_policy", policy, "one of " + ", ".join(ROLLOUT_POLICIES)
+        )
+    return Settings(
+        time_per_step=planner.float_option("time_per_step", None, minimum=0.0),
+        iterations=planner.int_option("iterations", None, minimum=1),
+        exploration=number("exploration", 2.0),
+        rollout_depth=whole("rollout_depth", 10, 0),
+        depth=whole("depth", 0, 0),
+        batch=whole("batch", 1024, 1),
+        rollouts=whole("rollouts", 1, 1),
+        trial_depth=whole("trial_depth", 10, 0),
+        extrapolate=planner.bool_option("extrapolate", True),
+        rollout_policy=policy,
+        init_weight=number("init_weight", 1.0, minimum=1e-9),
+        max_actions=whole("max_actions", 128, 1),
+        enumerate_limit=whole("enumerate_limit", 4096, 1),
+        particles=whole("particles", 64, 1),
+        transpositions=planner.bool_option("transpositions", True),
+        max_nodes=whole("max_nodes", 200_000, 1),
+        bellman_outcomes=whole("bellman_outcomes", 64, 0),
+        seed=planner.int_option("seed"),
+    )

@@ -1,0 +1,363 @@
+"""`MCTSPlanner`: the session, the turn, the roots (reused subtrees, the
+transposition table, the POMDP belief) and the waves of trials that grow
+the search graph (see the package docstring).
+
+Calls the other modules of the package: `tree` for selection, backups
+and the final choice, `rollouts` to expand new leaves, `actions` for
+candidates and rollout actions.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from typing import ClassVar
+
+import numpy as np
+
+from ...rddl.model import Model
+from ...rddl.simulator import SimulationError, Simulator, State
+from ...rddl.wire import WireCodec, WireError
+from ..base import Observation, Planner, PlannerError, SessionInfo, WireFluent
+from .actions import ActionChooser, ActionLibrary, _row_keys
+from .options import OPTIONS, Settings, read_settings
+from .rollouts import Expander
+from .stats import SearchStats
+from .tree import _Node, _Outcome, _Trial, backup, best, refresh, select
+
+log = logging.getLogger(__name__)
+
+Array = np.ndarray
+
+
+class MCTSPlanner(Planner):
+    """UCT over the batched simulator (see the package docstring)."""
+
+    name: ClassVar[str] = "mcts"
+    options: ClassVar[dict[str, str]] = OPTIONS
+
+    def __init__(self, **options: str) -> None:
+        super().__init__(**options)
+        self.settings: Settings = read_settings(self)
+        """The options, typed."""
+        self.stats = SearchStats()
+        """Counters over the whole session."""
+        self.last_turn = SearchStats()
+        """Counters of the last turn."""
+        self.rng = np.random.default_rng(self.settings.seed)
+        self._sim: Simulator | None = None
+        self._model: Model | None = None
+        self._codec: WireCodec | None = None
+        self._chooser: ActionChooser | None = None
+        self._expander: Expander | None = None
+        self._state_names: list[str] = []
+        self._root: _Node | None = None
+        self._last: tuple[_Node, int] | None = None  # (root, chosen candidate) of the last turn
+        # decision nodes by steps left and state, when `transpositions`
+        self._table: dict[int, dict[bytes, _Node]] = {}
+        self._belief: State | None = None  # POMDP particles
+        self._last_action: dict[str, Array] | None = None
+        self._discrete_obs = True
+
+    @property
+    def library(self) -> ActionLibrary | None:
+        """Every joint action the search has considered (None before a session)."""
+        return None if self._chooser is None else self._chooser.lib
+
+    # -- session ------------------------------------------------------
+
+    def start_session(self, session: SessionInfo) -> None:
+        super().start_session(session)
+        seed = self.settings.seed if self.settings.seed is not None else session.seed
+        self.rng = np.random.default_rng(seed)
+        sim = self._sim = session.simulator
+        self._model = session.model
+        self._codec = WireCodec(sim)
+        self._chooser = ActionChooser(sim, self.settings, self.rng)
+        self._expander = Expander(sim, self._chooser, self.settings, self.rng)
+        self._state_names = [p.name for p in sim.state_fluents]
+        self._discrete_obs = all(p.range != "real" for p in sim.observ_fluents)
+        self.stats = SearchStats()
+        log.info("mcts: %s, %s, seed %s", session.instance, self._chooser.describe(), seed)
+
+    def start_round(self, round_num: int) -> None:
+        self._table = {}
+        self._root = None
+        self._last = None
+        self._belief = None
+        self._last_action = None
+
+    def end_round(self, reward: float) -> None:
+        log.info(
+            "mcts: round reward %s; %d turns so far, %.0f simulated steps/s",
+            reward,
+            self.stats.turns,
+            self.stats.steps_per_second,
+        )
+
+    def end_session(self, total_reward: float) -> None:
+        s = self.stats
+        log.info(
+            "mcts: session reward %s; %d turns, %d waves, %d trials, %d leaves, %d simulated "
+            "steps in %.1f s (%.0f steps/s)",
+            total_reward,
+            s.turns,
+            s.waves,
+            s.trials,
+            s.leaves,
+            s.sim_steps,
+            s.seconds,
+            s.steps_per_second,
+        )
+
+    # -- a turn --------------------------------------------------------
+
+    def act(self, obs: Observation) -> list[WireFluent]:
+        if (
+            self._sim is None
+            or self._chooser is None
+            or self._codec is None
+            or self.session is None
+        ):
+            raise PlannerError("mcts: act() called before start_session()")
+        st = self.settings
+        started = time.monotonic()
+        deadline = started + st.time_per_step if st.time_per_step is not None else obs.deadline
+        turn = SearchStats(turns=1)
+        lookahead = obs.steps_left if st.depth == 0 else min(st.depth, obs.steps_left)
+        root, reused = self._make_root(obs, lookahead)
+        turn.reused = int(reused)
+        try:
+            if not root.expanded:
+                self._expand([root], turn)
+            if len(root.acts) > 1:
+                self._search(root, deadline, turn)
+                refresh(root, self._discount(), st.init_weight, st.bellman_outcomes)
+        except SimulationError as err:
+            # A model the search cannot simulate (e.g. a distribution given bad
+            # parameters by some action) must not end the session: act on what
+            # is known.
+            log.warning("mcts: search stopped at turn %d: %s", obs.turn, err)
+        if len(root.acts) == 0:
+            log.warning(
+                "mcts: turn %d: no legal joint action in this state; sending noop", obs.turn
+            )
+        choice = best(root)
+        row = int(root.acts[choice]) if len(root.acts) else 0
+        actions = self._chooser.lib.take(np.array([row]))
+        self._last = (root, choice) if len(root.acts) else None
+        self._last_action = actions
+        self._root = root
+        turn.seconds = time.monotonic() - started
+        self.last_turn = turn
+        self.stats.add(turn)
+        if log.isEnabledFor(logging.DEBUG):
+            q = root.qv
+            log.debug(
+                "mcts: turn %d (%d steps left): %d waves, %d trials, %d steps in %.3f s "
+                "(%.0f steps/s); value %.3f; chose %s",
+                obs.turn,
+                obs.steps_left,
+                turn.waves,
+                turn.trials,
+                turn.sim_steps,
+                turn.seconds,
+                turn.steps_per_second,
+                float(q[choice]) if len(q) else 0.0,
+                ", ".join(self._sim.actions_to_names(actions)) or "noop",
+            )
+        return self._codec.actions(actions, index=0)
+
+    def _expand(self, leaves: list[_Node], turn: SearchStats) -> None:
+        assert self._expander is not None
+        self._expander.expand(leaves, turn, self._discount())
+
+    def _discount(self) -> float:
+        assert self._model is not None
+        d = self._model.discount
+        return 1.0 if d is None else float(d)
+
+    # -- roots -----------------------------------------------------------
+
+    def _make_root(self, obs: Observation, lookahead: int) -> tuple[_Node, bool]:
+        """The root of this turn's search and whether it is reused: the
+        subtree when the tree has the observed successor of the last turn's
+        choice (with the same steps left), else a new node."""
+        assert self._sim is not None
+        if obs.state is None:
+            states = self._believe(obs)
+            return _Node(None, states, lookahead, False), False
+        key = self._state_keys(obs.state)[0]
+        if self.settings.transpositions:
+            # nodes further from the end than the root are out of reach
+            for steps in [k for k in self._table if k > lookahead]:
+                del self._table[steps]
+            if sum(len(bucket) for bucket in self._table.values()) > self.settings.max_nodes:
+                self._table = {}
+            bucket = self._table.setdefault(lookahead, {})
+            node = bucket.get(key)
+            if node is not None and not node.terminal:
+                node.states = obs.state
+                return node, node.expanded
+            node = bucket[key] = _Node(key, obs.state, lookahead, False)
+            return node, False
+        if self._last is not None:
+            node, choice = self._last
+            outcome = node.children[choice].get(key) if node.children else None
+            if (
+                outcome is not None
+                and outcome.node.steps == lookahead
+                and not outcome.node.terminal
+            ):
+                child = outcome.node
+                child.states = obs.state
+                return child, True
+        return _Node(key, obs.state, lookahead, False), False
+
+    def _believe(self, obs: Observation) -> State:
+        """The POMDP particles for this turn (see the module docstring)."""
+        assert self._sim is not None and self._codec is not None
+        sim = self._sim
+        if obs.turn <= 1 or self._belief is None or self._last_action is None:
+            self._belief = sim.initial_state(self.settings.particles)
+            return self._belief
+        n = self._belief.batch
+        acts = {k: np.repeat(v, n, axis=0) for k, v in self._last_action.items()}
+        try:
+            out = sim.step(self._belief, acts, self.rng, check=False)
+        except SimulationError as err:
+            log.warning("mcts: belief update failed (%s); back to the initial state", err)
+            self._belief = sim.initial_state(self.settings.particles)
+            return self._belief
+        nxt = out.next_state
+        if obs.fluents is not None and out.observation is not None and self._discrete_obs:
+            try:
+                seen = self._codec.observation_from(
+                    (n_, a, v) for (n_, a), v in obs.fluents.items()
+                )
+            except WireError as err:
+                log.warning("mcts: cannot read the observation: %s", err)
+                seen = None
+            if seen is not None:
+                match = np.ones(n, dtype=bool)
+                for name, arr in seen.items():
+                    sim_obs = out.observation[name].reshape(n, -1)
+                    match &= (sim_obs == arr.reshape(1, -1)).all(axis=1)
+                if match.any():
+                    keep = np.flatnonzero(match)
+                    nxt = nxt[self.rng.choice(keep, self.settings.particles)]
+                else:
+                    log.debug("mcts: no particle explains the observation; keeping them all")
+        self._belief = nxt
+        return nxt
+
+    # -- search ----------------------------------------------------------
+
+    def _state_keys(self, states: State) -> list[bytes]:
+        return _row_keys([states.values[k] for k in self._state_names], states.batch)
+
+    def _search(self, root: _Node, deadline: float, turn: SearchStats) -> None:
+        """Waves of trials until the deadline (or `iterations` waves)."""
+        n_acts = max(1, len(root.acts))
+        trials = max(
+            1, self.settings.batch // (n_acts * self.settings.rollouts * self.settings.modes)
+        )
+        wave_time = 0.0
+        waves = 0
+        while True:
+            if self.settings.iterations is not None:
+                if waves >= self.settings.iterations:
+                    break
+            elif waves > 0 and time.monotonic() + wave_time > deadline:
+                break
+            t0 = time.monotonic()
+            self._wave(root, trials, turn)
+            waves += 1
+            # the slower of the last wave and a decaying average: stop early
+            # rather than late
+            took = time.monotonic() - t0
+            wave_time = max(took, 0.7 * wave_time + 0.3 * took)
+        turn.waves += waves
+
+    def _wave(self, root: _Node, n_trials: int, turn: SearchStats) -> None:
+        """Descend `n_trials` trials together, expand their new leaves in one
+        batch and back the values up."""
+        assert self._sim is not None and self.library is not None and root.states is not None
+        sim = self._sim
+        rows = (
+            self.rng.integers(0, root.states.batch, n_trials)
+            if root.states.batch > 1
+            else np.zeros(n_trials, dtype=np.int64)
+        )
+        states = root.states[rows]
+        trials = [_Trial([], root, int(r)) for r in rows]
+        active = list(range(n_trials))
+        touched: list[_Node] = []
+        leaves: dict[int, _Node] = {}
+        level = 0
+        while active:
+            level += 1
+            choices = []
+            acts = np.empty(len(active), dtype=np.int64)
+            for j, i in enumerate(active):
+                node = trials[i].node
+                if not any(node.pending):
+                    touched.append(node)
+                a = select(node, self.settings.exploration, self.settings.init_weight)
+                choices.append(a)
+                acts[j] = node.acts[a]
+            out = sim.step(states, self.library.take(acts), self.rng, check=False)
+            turn.sim_steps += len(active)
+            turn.sim_calls += 1
+            keys = self._state_keys(out.next_state)
+            reward = out.reward.tolist()
+            done = out.done.tolist()
+            going: list[int] = []
+            going_rows: list[int] = []
+            for j, i in enumerate(active):
+                trial = trials[i]
+                node = trial.node
+                a = choices[j]
+                outcomes = node.children[a]
+                outcome = outcomes.get(keys[j])
+                if outcome is None:
+                    outcome = outcomes[keys[j]] = _Outcome(
+                        self._node(keys[j], out.next_state, j, node.steps - 1, bool(done[j]))
+                    )
+                trial.path.append((node, a, outcome, float(reward[j])))
+                child = outcome.node
+                trial.node = child
+                if child.terminal:
+                    continue
+                if not child.expanded:
+                    leaves[id(child)] = child
+                    continue
+                if level == self.settings.trial_depth:
+                    continue  # backs up the value the node has
+                going.append(i)
+                going_rows.append(j)
+            active = going
+            if going:
+                states = out.next_state[np.asarray(going_rows)]
+        for node in touched:
+            node.pending = [0] * len(node.pending)
+        if leaves:
+            self._expand(list(leaves.values()), turn)
+        gamma = self._discount()
+        st = self.settings
+        for trial in trials:
+            backup(trial, gamma, st.init_weight, st.bellman_outcomes)
+        turn.trials += n_trials
+
+    def _node(self, key: bytes, states: State, row: int, steps: int, done: bool) -> _Node:
+        """The decision node of a sampled successor: the one the table has
+        for this state and steps left, else a new one."""
+        if not self.settings.transpositions:
+            return _Node(key, states[row], steps, done)
+        bucket = self._table.get(steps)
+        if bucket is None:
+            bucket = self._table[steps] = {}
+        node = bucket.get(key)
+        if node is None:
+            node = bucket[key] = _Node(key, states[row], steps, done)
+        return node
