@@ -443,7 +443,7 @@ def search(
     per_round = 0.0  # the slowest expansion round so far
     n_cand = problem.n_candidates
     cut = False
-    sampled = False  # some node had more legal joint actions than max_actions
+    over_limit = False  # some node had more legal joint actions than max_actions
     while heap:
         now = time.monotonic()
         if expansions and now + 2.0 * per_round > deadline:
@@ -466,7 +466,7 @@ def search(
         if problem.solver is not None:
             # each node's own legal joint actions
             states, acts, owner, cut_here = problem.legal_children(parents)
-            sampled = sampled or cut_here
+            over_limit = over_limit or cut_here
         else:
             # every candidate in every chosen node, the legal ones kept
             states = parents[np.repeat(np.arange(m), n_cand)]
@@ -549,7 +549,7 @@ def search(
                 if kdepth[j] < depth and not done[i]:
                     heapq.heappush(heap, (-q[node], int(kdepth[j]), node))
         per_round = max(per_round, time.monotonic() - started)
-    truncated = sampled if problem.solver is not None else problem.truncated
+    truncated = over_limit if problem.solver is not None else problem.truncated
     complete = not cut and not truncated and problem.outcomes == 0
     # the plan: the path to the best node, then noop to the depth
     steps: list[PlanStep] = []

@@ -40,3 +40,51 @@ def corpus_pairs() -> list[tuple[Path, Path]]:
         for inst in sorted(dom.parent.glob("instance*.rddl")):
             pairs.append((dom, inst))
     return pairs
+
+
+#: The MDP domains of IPPC 2011, 2014 and 2018 in rddlrepository (archive/competitions).
+IPPC_MDP_DOMAINS: dict[str, list[str]] = {
+    "IPPC2011": [
+        "CooperativeRecon",
+        "CrossingTraffic",
+        "Elevators",
+        "GameOfLife",
+        "Navigation",
+        "SkillTeaching",
+        "SysAdmin",
+        "Traffic",
+    ],
+    "IPPC2014": [
+        "AcademicAdvising",
+        "CrossingTraffic",
+        "Elevators",
+        "SkillTeaching",
+        "Tamarisk",
+        "Traffic",
+        "TriangleTireworld",
+        "Wildfire",
+    ],
+    "IPPC2018": [
+        "AcademicAdvising",
+        "ChromaticDice",
+        "CooperativeRecon",
+        "EarthObservation",
+        "Manufacturer",
+        "PushYourLuck",
+        "RedFinnedBlueEye",
+        "WildlifePreserve",
+    ],
+}
+
+
+def ippc_files(year: str, domain: str, n: int = 1) -> tuple[Path, Path]:
+    """(domain.rddl, instance<n>.rddl) of an IPPC MDP domain in rddlrepository
+    (its MDP folder where it has one; WildlifePreserve's p<n> folders)."""
+    folder = corpus_root() / "archive" / "competitions" / year / domain
+    for sub in ("MDP", f"p{n}"):
+        if (folder / sub).is_dir():
+            folder = folder / sub
+    inst = folder / f"instance{n}.rddl"
+    if not inst.exists():  # one instance per folder
+        inst = sorted(folder.glob("instance*.rddl"))[0]
+    return folder / "domain.rddl", inst

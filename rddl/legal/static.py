@@ -19,6 +19,7 @@ import numpy as np
 
 from .. import ast as A
 from ..model import ACTION, NON_FLUENT, STATE, Model, PVariable
+from ..sim.base import _int_enum_value
 
 Array = np.ndarray
 Ground = tuple[Any, ...]
@@ -86,7 +87,7 @@ class Layout:
         self.numeric_of_code: dict[str, Array] = {}
         for t, info in model.types.items():
             if info.kind == "enum":
-                ints = [_int_name(m) for m in info.members]
+                ints = [_int_enum_value(m) for m in info.members]  # as the simulator reads them
                 if all(v is not None for v in ints):
                     self.numeric_of_code[t] = np.array(ints, dtype=np.int64)
 
@@ -123,14 +124,6 @@ class Layout:
             if name in self.codes[t]:
                 return self.codes[t][name], t
         raise NotStatic(f"unknown object or enum value '{name}'")
-
-
-def _int_name(member: str) -> int | None:
-    text = member.lstrip("@")
-    try:
-        return int(text)
-    except ValueError:
-        return None
 
 
 # --------------------------------------------------------- static values

@@ -26,41 +26,9 @@ from ippc.server.app import serve
 from ippc.server.config import ServerConfig
 from ippc.server.registry import Registry
 
-from ..conftest import corpus_root
+from ..conftest import IPPC_MDP_DOMAINS, ippc_files
 
-DOMAINS = {
-    "IPPC2011": [
-        "CooperativeRecon",
-        "CrossingTraffic",
-        "Elevators",
-        "GameOfLife",
-        "Navigation",
-        "SkillTeaching",
-        "SysAdmin",
-        "Traffic",
-    ],
-    "IPPC2014": [
-        "AcademicAdvising",
-        "CrossingTraffic",
-        "Elevators",
-        "SkillTeaching",
-        "Tamarisk",
-        "Traffic",
-        "TriangleTireworld",
-        "Wildfire",
-    ],
-    "IPPC2018": [
-        "AcademicAdvising",
-        "ChromaticDice",
-        "CooperativeRecon",
-        "EarthObservation",
-        "Manufacturer",
-        "PushYourLuck",
-        "RedFinnedBlueEye",
-        "WildlifePreserve",
-    ],
-}
-CASES = [(year, domain) for year, domains in DOMAINS.items() for domain in domains]
+CASES = [(year, domain) for year, domains in IPPC_MDP_DOMAINS.items() for domain in domains]
 
 PLANNERS = {
     "mcts": {"time_per_step": "0.05", "seed": "1"},
@@ -71,14 +39,6 @@ PLANNERS = {
 # where rddlsim's RandomConcurrentPolicy gives up at once, and where it may
 RANDOM_STUCK_AT_ONCE = {("IPPC2018", "ChromaticDice"), ("IPPC2018", "WildlifePreserve")}
 RANDOM_MAY_STICK = {("IPPC2018", "EarthObservation"), ("IPPC2018", "PushYourLuck")}
-
-
-def instance_files(year: str, domain: str) -> tuple[Path, Path]:
-    folder = corpus_root() / "archive" / "competitions" / year / domain
-    for sub in ("MDP", "p1"):
-        if (folder / sub).is_dir():
-            folder = folder / sub
-    return folder / "domain.rddl", folder / "instance1.rddl"
 
 
 def play(files: tuple[Path, Path], instance: str, planner: str) -> SessionResult | Exception:
@@ -108,7 +68,7 @@ def play(files: tuple[Path, Path], instance: str, planner: str) -> SessionResult
 @pytest.mark.slow
 @pytest.mark.parametrize("year,domain", CASES, ids=[f"{y}-{d}" for y, d in CASES])
 def test_instance_one_is_played_legally(year: str, domain: str) -> None:
-    files = instance_files(year, domain)
+    files = ippc_files(year, domain)
     model = load_pair(*files)
     assert model.horizon is not None
     for planner in PLANNERS:

@@ -18,7 +18,7 @@ from ippc.rddl import load_pair
 from ippc.rddl.simulator import Simulator
 from ippc.rddl.wire import WireCodec, rddlsim_action_order, value_kind
 
-from ..conftest import corpus_root
+from ..conftest import ippc_files
 
 # Java sessions of rddl.competition.Client with rddl.policy.RandomConcurrentPolicy
 POLICY_RECORDINGS = [
@@ -99,18 +99,12 @@ def test_well19937c_matches_java() -> None:
     assert RandomDataGenerator(3).permute(1) == [0]
 
 
-def _ippc(domain: str, year: str, n: int = 1) -> tuple[Path, Path]:
-    folder = corpus_root() / "archive" / "competitions" / year / domain
-    folder = folder / "MDP" if (folder / "MDP").is_dir() else folder
-    return folder / "domain.rddl", folder / f"instance{n}.rddl"
-
-
 def test_skill_teaching_first_action_frequencies() -> None:
     """SkillTeaching #1 (max-nondef-actions 1, no constraints): rddlsim's
     order is giveHint, askProb (Java HashMap order), so each giveHint(s) is
     taken with probability 3/8, each askProb(s) 3/32, noop 1/16. The
     declaration order (askProb first) would swap the two."""
-    model = load_pair(*_ippc("SkillTeaching", "IPPC2014"))
+    model = load_pair(*ippc_files("IPPC2014", "SkillTeaching"))
     sim = Simulator(model)
     assert [p.name for p in rddlsim_action_order(model)] == ["giveHint", "askProb"]
     assert [p.name for p in sim.action_fluents] == ["askProb", "giveHint"]
@@ -156,7 +150,7 @@ def test_stops_where_rddlsim_stops_and_can_go_on() -> None:
     once are legal: rddlsim's policy tries them one by one, none passes,
     and noop is illegal: it gives up. With when_stuck=legal the planner
     sends the five rolls instead."""
-    info = _session(_ippc("ChromaticDice", "IPPC2018"))
+    info = _session(ippc_files("IPPC2018", "ChromaticDice"))
     sim = info.simulator
     codec = WireCodec(sim)
     state = sim.initial_state(1)
@@ -177,7 +171,7 @@ def test_stops_where_rddlsim_stops_and_can_go_on() -> None:
 
 
 def test_default_seed_is_the_java_clients() -> None:
-    info = _session(_ippc("SysAdmin", "IPPC2011"))
+    info = _session(ippc_files("IPPC2011", "SysAdmin"))
     codec = WireCodec(info.simulator)
     state = info.simulator.initial_state(1)
     a = RandomPlanner()

@@ -13,21 +13,14 @@ from ippc.rddl import load, load_pair
 from ippc.rddl.legal import LegalActions, NoLegalAction, TooManyActions, solver_for
 from ippc.rddl.simulator import Simulator, State
 
-from ..conftest import corpus_root
+from ..conftest import IPPC_MDP_DOMAINS, ippc_files
 
 HERE = Path(__file__).resolve().parent
 REPO = HERE.parents[1]
 
 
 def ippc(year: str, domain: str, n: int = 1) -> Simulator:
-    folder = corpus_root() / "archive" / "competitions" / year / domain
-    for sub in ("MDP", f"p{n}"):
-        if (folder / sub).is_dir():
-            folder = folder / sub
-    inst = folder / f"instance{n}.rddl"
-    if not inst.exists():
-        inst = sorted(folder.glob("instance*.rddl"))[0]
-    return Simulator(load_pair(folder / "domain.rddl", inst))
+    return Simulator(load_pair(*ippc_files(year, domain, n)))
 
 
 def tiny(name: str) -> Simulator:
@@ -158,19 +151,7 @@ def test_a_state_without_legal_actions_says_why() -> None:
         legal.sample_batch(both, np.random.default_rng(0))
 
 
-IPPC2018 = [
-    "AcademicAdvising",
-    "ChromaticDice",
-    "CooperativeRecon",
-    "EarthObservation",
-    "Manufacturer",
-    "PushYourLuck",
-    "RedFinnedBlueEye",
-    "WildlifePreserve",
-]
-
-
-@pytest.mark.parametrize("domain", IPPC2018)
+@pytest.mark.parametrize("domain", IPPC_MDP_DOMAINS["IPPC2018"])
 def test_ippc2018_nothing_legal_is_missed(domain: str) -> None:
     """Too many joint actions for brute force: random probes with few
     non-default groundings; every probe the simulator finds legal is among
