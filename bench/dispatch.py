@@ -43,19 +43,25 @@ def dispatch_pass(planner: str, runs: int) -> tuple[float, int]:
 
 def server_pass(planner: str, runs: int) -> tuple[float, int]:
     from ippc.client.session import ClientConfig, run_session
-    from ippc.planners.base import make_planner
+    from ippc.planners.base import Planner, make_planner
     from ippc.server.app import serve
     from ippc.server.config import ServerConfig
     from ippc.server.registry import Registry
 
+    if not isinstance(make_planner(planner, {}), Planner):
+        # an external planner (PROST) connects by itself: not a client-side planner
+        raise SystemExit(f"--planner {planner}: the server pass needs a built-in planner")
+
     async def one(seed: int) -> int:
+        agent = make_planner(planner, {})
+        assert isinstance(agent, Planner)
         registry = Registry.load(DOMAIN, INSTANCE)
         config = ServerConfig(port=0, rounds=1, seed=seed, timeout=0, individual_session=True)
         async with trio.open_nursery() as nursery:
             port = await nursery.start(serve, config, registry)
             result = await run_session(
                 ClientConfig(port=port, instance="courier_one", seed=seed),
-                make_planner(planner, {}),
+                agent,
                 planner,
             )
         return sum(r.turns for r in result.rounds)
