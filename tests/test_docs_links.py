@@ -68,3 +68,9 @@ def test_files_named_in_code_spans_exist(page: Path) -> None:
             if not (REPO / span.rstrip("/")).exists():
                 missing.append(span)
     assert not missing, f"{page.relative_to(REPO)} names paths that are not there: {missing}"
+
+
+def test_the_readme_stays_a_front_page() -> None:
+    """The reference lives in docs/; the README is the front page (issue 14: about 250 lines)."""
+    lines = (REPO / "README.md").read_text(encoding="utf-8").splitlines()
+    assert len(lines) <= 250, f"README.md has {len(lines)} lines: move the reference into docs/"
