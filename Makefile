@@ -37,14 +37,14 @@ test-fast: install
 # exact (the optimal policy, by value iteration over the instance's 480 states).
 demo: install
 	@set -e; out=$$(mktemp); \
-	$(BIN)/rddl-server domains/print_fetch --port 0 --rounds 3 -q > $$out & pid=$$!; \
+	$(BIN)/rddl-server domains/print_jobs --port 0 --rounds 3 -q > $$out & pid=$$!; \
 	trap 'kill $$pid 2>/dev/null; rm -f $$out' EXIT; \
 	for i in $$(seq 300); do grep -q '^listening on' $$out && break; sleep 0.1; done; \
 	port=$$(sed -n 's/^listening on .*://p' $$out); \
 	test -n "$$port" || { echo "rddl-server did not start"; exit 1; }; \
 	echo "rddl-server listening on 127.0.0.1:$$port"; \
 	for planner in noop random exact; do \
-		$(BIN)/rddl-client --port $$port --instance print_fetch_inst_1 --planner $$planner --seed 1 -q; \
+		$(BIN)/rddl-client --port $$port --instance print_jobs_inst_1 --planner $$planner --seed 1 -q; \
 	done
 
 bench: install

@@ -3,8 +3,8 @@
 Parse, check and write RDDL files::
 
     from ippc.rddl import load
-    models = load("domains/print_fetch")      # files or folders
-    model = models["print_fetch_inst_1"]
+    models = load("domains/print_jobs")      # files or folders
+    model = models["print_jobs_inst_1"]
 
 `parse`/`parse_file` give the typed AST (`ippc.rddl.ast`); `load` pairs
 instances with their domain and non-fluents and checks them into `Model`s;

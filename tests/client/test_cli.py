@@ -243,13 +243,13 @@ def test_planners_that_plan_from_the_command_line(
 
 
 def test_exact_planner_from_the_command_line(server: Server, tmp_path: Path) -> None:
-    """`--planner exact` solves print_fetch_inst_1 (480 reachable states,
+    """`--planner exact` solves print_jobs_inst_1 (480 reachable states,
     optimum 12.53 a round) and plays it; noop scores -20 a round there. On
     the corridor, whose termination it does not enumerate, it stops before
     playing with the reason."""
     out = tmp_path / "result.json"
     proc = rddl_client(
-        "--port", str(server.port), "--instance", "print_fetch_inst_1", "--planner", "exact",
+        "--port", str(server.port), "--instance", "print_jobs_inst_1", "--planner", "exact",
         "--name", "cli-exact", "--json-out", str(out), "-q",
     )  # fmt: skip
     assert proc.returncode == 0, proc.stderr

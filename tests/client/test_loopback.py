@@ -24,10 +24,10 @@ from .loopback import DOMAINS, Watch, our_server, settled
 pytestmark = pytest.mark.trio
 
 BUNDLED = [
-    ("print_fetch", "instance1.rddl"),
-    ("print_fetch", "instance2.rddl"),
-    ("print_fetch", "instance3.rddl"),
-    ("print_fetch_pomdp", "instance1.rddl"),
+    ("print_jobs", "instance1.rddl"),
+    ("print_jobs", "instance2.rddl"),
+    ("print_jobs", "instance3.rddl"),
+    ("print_jobs_pomdp", "instance1.rddl"),
     ("corridor_enum", "instance1.rddl"),
 ]
 
@@ -147,7 +147,7 @@ async def run_pair(domain: Path, instance: Path) -> list[SessionResult]:
 async def test_bundled_instance_sessions(folder: str, instance: str) -> None:
     results = await run_pair(DOMAINS / folder / "domain.rddl", DOMAINS / folder / instance)
     # noop is deterministic where the domain is: the two framings agree
-    if folder.startswith("print_fetch"):
+    if folder.startswith("print_jobs"):
         assert results[0].total_reward == results[1].total_reward
 
 
@@ -158,7 +158,7 @@ async def test_corpus_instance_sessions(rel: str) -> None:
 
 async def test_bundled_pomdp_is_a_pomdp() -> None:
     """The POMDP variants above really play POMDPs (turn 1 without fluents)."""
-    async with our_server(DOMAINS / "print_fetch_pomdp", rounds=1) as (port, registry, _):
+    async with our_server(DOMAINS / "print_jobs_pomdp", rounds=1) as (port, registry, _):
         watch = Watch(make_planner("noop", {}))  # type: ignore[arg-type]
         with trio.fail_after(30):
             await run_session(
@@ -197,7 +197,7 @@ async def test_local_rddl_instead_of_the_task() -> None:
             with pytest.raises(ClientError, match=r"^--rddl: .*no instance 'corridor_enum_inst_1'"):
                 await run_session(
                     ClientConfig(
-                        port=port, instance=name, timeout=10, rddl=(DOMAINS / "print_fetch",)
+                        port=port, instance=name, timeout=10, rddl=(DOMAINS / "print_jobs",)
                     ),
                     make_planner("noop", {}),  # type: ignore[arg-type]
                 )

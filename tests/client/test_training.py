@@ -25,8 +25,8 @@ from .loopback import DOMAINS, our_server, settled
 
 pytestmark = pytest.mark.trio
 
-FOLDER = DOMAINS / "print_fetch"
-INSTANCE = "print_fetch_inst_1"
+FOLDER = DOMAINS / "print_jobs"
+INSTANCE = "print_jobs_inst_1"
 
 
 async def play(port: int, training: int) -> SessionResult:

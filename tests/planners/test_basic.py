@@ -28,9 +28,9 @@ REPO = Path(__file__).resolve().parents[2]
 # sidewalk's state-action constraints are really state invariants that its
 # own random walks break, after which not even noop is legal)
 MDPS = [
-    ("print_fetch_inst_1", True),
-    ("print_fetch_inst_2", True),
-    ("print_fetch_inst_3", True),  # no max-nondef-actions, preconditions only
+    ("print_jobs_inst_1", True),
+    ("print_jobs_inst_2", True),
+    ("print_jobs_inst_3", True),  # no max-nondef-actions, preconditions only
     ("corridor_enum_inst_1", True),  # enum-valued actions
     ("sysadmin_inst_mdp__1", True),  # max-nondef-actions = 1, no preconditions
     ("elevators_inst_mdp__1", True),  # state-action constraints
@@ -40,7 +40,7 @@ MDPS = [
     ("is4", False),  # sidewalk: enum actions, max-nondef-actions = 4
     ("inst_simple_mars_rover", False),  # real-valued actions
 ]
-POMDPS = ["sysadmin_inst_pomdp__1", "print_fetch_pomdp_inst_1"]
+POMDPS = ["sysadmin_inst_pomdp__1", "print_jobs_pomdp_inst_1"]
 
 
 @pytest.fixture(scope="module")
@@ -91,7 +91,7 @@ def play(
 
 
 def test_noop(models: dict[str, Model]) -> None:
-    info = session(models["print_fetch_inst_1"])
+    info = session(models["print_jobs_inst_1"])
     planner = NoopPlanner()
     planner.start_session(info)
     assert planner.session is info

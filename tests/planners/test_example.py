@@ -30,7 +30,7 @@ def _greedy_class() -> type[Planner]:
 GreedyPlanner = _greedy_class()
 
 
-@pytest.mark.parametrize("name", ["print_fetch_inst_1", "elevators_inst_mdp__1"])
+@pytest.mark.parametrize("name", ["print_jobs_inst_1", "elevators_inst_mdp__1"])
 def test_greedy_example(rddlsim_rddl: Path, name: str) -> None:
     models = {**load(rddlsim_rddl), **load(REPO / "domains")}
     model = models[name]

@@ -355,7 +355,7 @@ def test_observation_deadline_is_the_default(sims: dict[str, Simulator]) -> None
 def test_pomdp_plans_from_a_belief(sims: dict[str, Simulator], models: dict[str, Model]) -> None:
     """Without a state the planner keeps particles of the initial state and
     its own actions; its actions are legal in the true state."""
-    name = "print_fetch_pomdp_inst_1"
+    name = "print_jobs_pomdp_inst_1"
     sim = sims[name]
     planner = planner_for(sims, name, particles="16", **FAST)
     codec = WireCodec(sim)

@@ -414,11 +414,11 @@ async def test_session_on_the_chain() -> None:
 
 
 @pytest.mark.trio
-async def test_session_on_print_fetch_beats_noop() -> None:
-    paths = [DOMAINS / "print_fetch" / "domain.rddl", DOMAINS / "print_fetch" / "instance1.rddl"]
-    noop, _, _ = await _session(paths, "print_fetch_inst_1", "noop", {}, rounds=2)
+async def test_session_on_print_jobs_beats_noop() -> None:
+    paths = [DOMAINS / "print_jobs" / "domain.rddl", DOMAINS / "print_jobs" / "instance1.rddl"]
+    noop, _, _ = await _session(paths, "print_jobs_inst_1", "noop", {}, rounds=2)
     replan, planner, watch = await _session(
-        paths, "print_fetch_inst_1", "replan", {"time_per_step": "0.25"}, rounds=2
+        paths, "print_jobs_inst_1", "replan", {"time_per_step": "0.25"}, rounds=2
     )
     assert isinstance(planner, ReplanPlanner)
     assert len(watch.turns) == 40  # two whole rounds of 20 turns
@@ -433,10 +433,10 @@ async def test_session_on_print_fetch_beats_noop() -> None:
 
 @pytest.mark.trio
 async def test_session_on_a_pomdp_plays_open_loop() -> None:
-    folder = DOMAINS / "print_fetch_pomdp"
+    folder = DOMAINS / "print_jobs_pomdp"
     paths = [folder / "domain.rddl", folder / "instance1.rddl"]
     result, planner, watch = await _session(
-        paths, "print_fetch_pomdp_inst_1", "replan", {"time_per_step": "0.2"}, rounds=1
+        paths, "print_jobs_pomdp_inst_1", "replan", {"time_per_step": "0.2"}, rounds=1
     )
     assert isinstance(planner, ReplanPlanner)
     # the state is never shown, so nothing can surprise the planner: it

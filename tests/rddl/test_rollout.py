@@ -32,7 +32,7 @@ def test_random_policy_respects_max_nondef_actions(rddlsim_rddl: Path) -> None:
 
 
 def test_random_policy_respects_preconditions() -> None:
-    m = load(DOMAINS / "print_fetch")["print_fetch_inst_2"]
+    m = load(DOMAINS / "print_jobs")["print_jobs_inst_2"]
     sim = Simulator(m)
     rng = np.random.default_rng(1)
     s = sim.initial_state(64)
@@ -60,7 +60,7 @@ def test_legal_actions_of_a_boolean_action_space(rddlsim_rddl: Path) -> None:
     legal = sim.legal_actions(sim.initial_state())
     assert legal["reboot"].shape == (11, 10)  # noop and each single reboot
     assert legal["reboot"][0].sum() == 0
-    pf = Simulator(load(DOMAINS / "print_fetch")["print_fetch_inst_1"])
+    pf = Simulator(load(DOMAINS / "print_jobs")["print_jobs_inst_1"])
     legal = pf.legal_actions(pf.initial_state())
     # at the dock: noop or the one move the map allows
     assert [pf.actions_to_names(legal, i) for i in range(len(legal["move"]))] == [
@@ -90,8 +90,8 @@ def test_cli_sim_json() -> None:
         main,
         [
             "sim",
-            str(DOMAINS / "print_fetch" / "domain.rddl"),
-            str(DOMAINS / "print_fetch" / "instance1.rddl"),
+            str(DOMAINS / "print_jobs" / "domain.rddl"),
+            str(DOMAINS / "print_jobs" / "instance1.rddl"),
             "--policy",
             "random",
             "--episodes",
@@ -112,7 +112,7 @@ def test_cli_sim_json() -> None:
         "steps_per_second",
     }
     assert (
-        data["instance"] == "print_fetch_inst_1"
+        data["instance"] == "print_jobs_inst_1"
         and data["episodes"] == 20
         and data["steps"] == 20 * 20
     )
@@ -122,8 +122,8 @@ def test_cli_sim_json() -> None:
             main,
             [
                 "sim",
-                str(DOMAINS / "print_fetch" / "domain.rddl"),
-                str(DOMAINS / "print_fetch" / "instance1.rddl"),
+                str(DOMAINS / "print_jobs" / "domain.rddl"),
+                str(DOMAINS / "print_jobs" / "instance1.rddl"),
                 "--policy",
                 "random",
                 "--episodes",

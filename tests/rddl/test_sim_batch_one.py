@@ -124,7 +124,7 @@ def test_batch_of_one_code_agrees_with_small_batch_code(rddlsim_rddl: Path, name
 
 def test_batch_of_one_code_agrees_on_the_corpus_and_examples() -> None:
     sims = [Simulator(load_pair(*pair)) for pair in _corpus_pairs()]
-    for folder in ("corridor_enum", "print_fetch", "print_fetch_pomdp"):
+    for folder in ("corridor_enum", "print_jobs", "print_jobs_pomdp"):
         sims += [Simulator(m) for m in load(DOMAINS / folder).values()]
     assert sims
     for sim in sims:

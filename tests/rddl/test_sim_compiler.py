@@ -96,8 +96,8 @@ def test_small_and_large_batch_code_agree(rddlsim_rddl: Path, name: str) -> None
 
 
 def test_small_and_large_batch_code_agree_on_the_examples() -> None:
-    for folder, name in [("corridor_enum", "corridor_enum_inst_1"), ("print_fetch", "print_fetch_inst_2"),
-                         ("print_fetch_pomdp", None)]:  # fmt: skip
+    for folder, name in [("corridor_enum", "corridor_enum_inst_1"), ("print_jobs", "print_jobs_inst_2"),
+                         ("print_jobs_pomdp", None)]:  # fmt: skip
         models = load(DOMAINS / folder)
         for key, model in models.items():
             if name is None or key == name:
@@ -325,7 +325,7 @@ def reference_random_actions(
 
 @pytest.mark.parametrize(
     "folder, name",
-    [("print_fetch", "print_fetch_inst_2"), ("corridor_enum", "corridor_enum_inst_1")],
+    [("print_jobs", "print_jobs_inst_2"), ("corridor_enum", "corridor_enum_inst_1")],
 )
 def test_random_policy_matches_the_sequential_rule(folder: str, name: str) -> None:
     sim = Simulator(load(DOMAINS / folder)[name])
