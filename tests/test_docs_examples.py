@@ -50,10 +50,10 @@ class Console:
 CONSOLE: dict[tuple[str, str], Console] = {
     ("README.md", "make demo"): Console("make"),
     ("docs/cli.md", "rddl check domains/"): Console(),
-    ("docs/cli.md", "rddl sim domains/print_fetch/domain.rddl"): Console(),
+    ("docs/cli.md", "rddl sim domains/print_jobs/domain.rddl"): Console(),
     ("docs/cli.md", "SYSADMIN=$(python -c"): Console(),
     ("docs/cli.md", "rddl-server domains/ --port 2323"): Console("server"),
-    ("docs/cli.md", "rddl-client --port 2323 --instance print_fetch_inst_1"): Console(
+    ("docs/cli.md", "rddl-client --port 2323 --instance print_jobs_inst_1"): Console(
         "client", ("domains/", "--rounds", "3")
     ),
 }

@@ -19,7 +19,7 @@ rounds = 2
 timeout = 120
 seed = 7
 instances = [
-    "{REPO / "domains" / "print_fetch" / "instance1.rddl"}",
+    "{REPO / "domains" / "print_jobs" / "instance1.rddl"}",
     "{RDDLSIM_RDDL / "sysadmin_inst_mdp__1.rddl"}",
     "{RDDLSIM_RDDL / "game_of_life_inst_mdp__1.rddl"}",
 ]

@@ -32,7 +32,7 @@ def problems(text: str, name: str = "exp.toml") -> list[str]:
 def test_the_issue_example_reads_as_written(tmp_path: Path) -> None:
     (tmp_path / "exp.toml").write_text(
         "rounds = 3\ntimeout = 60            # seconds per session\n"
-        f'instances = ["{REPO / "domains" / "print_fetch"}/", "SysAdmin_MDP_ippc2011:1"]\n'
+        f'instances = ["{REPO / "domains" / "print_jobs"}/", "SysAdmin_MDP_ippc2011:1"]\n'
         '[planners.mcts]\nplanner = "mcts"\noptions = { seed = "1" }\n'
         "[planners.prost]\n"
         'command = "rddl-client --host {host} --port {port} --instance {instance} --prost /path/to/search"\n'
@@ -56,9 +56,9 @@ def test_the_issue_example_reads_as_written(tmp_path: Path) -> None:
     ]
     names = [i.name for i in resolve_instances(exp)]
     assert names == [
-        "print_fetch_inst_1",
-        "print_fetch_inst_2",
-        "print_fetch_inst_3",
+        "print_jobs_inst_1",
+        "print_jobs_inst_2",
+        "print_jobs_inst_3",
         "sysadmin_inst_mdp__1",
     ]
 
@@ -144,11 +144,11 @@ def test_examples_check_and_resolve() -> None:
 
 def test_seeds_are_stable_and_shared_by_the_planners_of_an_instance() -> None:
     exp = parse_experiment(
-        f'seed = 3\ninstances = ["{REPO / "domains" / "print_fetch"}"]\n', Path("e.toml")
+        f'seed = 3\ninstances = ["{REPO / "domains" / "print_jobs"}"]\n', Path("e.toml")
     )
     jobs = build_jobs(exp, resolve_instances(exp))
-    assert stable_seed(3, "server", "print_fetch_inst_1") == stable_seed(
-        3, "server", "print_fetch_inst_1"
+    assert stable_seed(3, "server", "print_jobs_inst_1") == stable_seed(
+        3, "server", "print_jobs_inst_1"
     )
     by_instance: dict[str, set[int]] = {}
     for job in jobs:

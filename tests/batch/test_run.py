@@ -157,7 +157,7 @@ def test_rddlsim_log_sits_in_one_table_with_our_results(small_reference) -> None
     assert set(table.skipped) == {"elevators_inst_mdp__1", "crossing_traffic_inst_mdp__1"}
     java = [s for s in table.instances if s.planner == "javaclient"]
     assert {s.instance for s in java} == {
-        "print_fetch_inst_1",
+        "print_jobs_inst_1",
         "sysadmin_inst_mdp__1",
         "game_of_life_inst_mdp__1",
     }
@@ -218,7 +218,7 @@ def test_against_an_existing_server_records_what_the_client_saw(tmp_path: Path) 
     server = subprocess.Popen(
         [
             str(Path(sys.executable).parent / "rddl-server"),
-            str(REPO / "domains" / "print_fetch"),
+            str(REPO / "domains" / "print_jobs"),
             "--port",
             "0",
             "--rounds",
@@ -237,7 +237,7 @@ def test_against_an_existing_server_records_what_the_client_saw(tmp_path: Path) 
         port = int(line.rsplit(":", 1)[1])
         path = tmp_path / "srv.toml"
         path.write_text(
-            f'name = "srv"\nrounds = 2\ntimeout = 60\ninstances = ["{REPO / "domains" / "print_fetch" / "instance1.rddl"}"]\n'
+            f'name = "srv"\nrounds = 2\ntimeout = 60\ninstances = ["{REPO / "domains" / "print_jobs" / "instance1.rddl"}"]\n'
             '[planners.cmd]\ncommand = "true {port}"\n'
         )
         from ippc.batch import ExperimentError
@@ -252,7 +252,7 @@ def test_against_an_existing_server_records_what_the_client_saw(tmp_path: Path) 
         assert (summary.finished, summary.failed) == (2, 0)
         with BatchStore(db) as store:
             noop = [r.reward for r in store.round_records() if r.planner == "noop"]
-            assert noop == [-20.0, -20.0]  # noop on print_fetch_inst_1, every round
+            assert noop == [-20.0, -20.0]  # noop on print_jobs_inst_1, every round
             assert store.raw("SELECT count(*) FROM steps")[0][0] == 0  # the client saw no steps
             assert {r[0] for r in store.raw("SELECT peer FROM sessions")} == {f"127.0.0.1:{port}"}
     finally:
