@@ -52,9 +52,10 @@ def state(
     carrying: bool = False,
     somebody: tuple[str, ...] = (),
     busy: tuple[str, ...] = (),
-    goal: bool = False,
+    delivered: bool = False,
 ) -> State:
-    """A state of one robot, by names."""
+    """A state of one robot, by names (`delivered`: the destination has its
+    papers and the goal holds)."""
     points = sim.model.objects("waypoint")
     s = sim.initial_state()
     v = {k: np.zeros_like(a) for k, a in s.values.items()}
@@ -64,7 +65,11 @@ def state(
         v["somebody_at"][0, points.index(w)] = True
     for w in busy:
         v["is_busy"][0, points.index(w)] = True
-    v["goal"][0] = goal
+    if delivered:
+        for (name, args), value in sim.model.non_fluent_values.items():
+            if name == "DELIVERY_DESTINATION" and value:
+                v["delivered"][0, points.index(args[0])] = True
+        v["goal"][0] = True
     return State(v)
 
 
@@ -172,7 +177,7 @@ def test_wait_load_only_at_a_printer_with_an_empty_tray_before_the_goal(sim: Sim
     for s, at in [
         (state(sim, "kitchen", somebody=("kitchen",)), "kitchen"),
         (state(sim, "p1", carrying=True, somebody=("p1",)), "p1"),
-        (state(sim, "p1", somebody=("p1",), goal=True), "p1"),
+        (state(sim, "p1", somebody=("p1",), delivered=True), "p1"),
         (state(sim, "p2", somebody=("p1",)), "p1"),
     ]:
         with pytest.raises(SimulationError):
@@ -180,12 +185,18 @@ def test_wait_load_only_at_a_printer_with_an_empty_tray_before_the_goal(sim: Sim
 
 
 def test_wait_unload_at_the_destination_delivers_and_reaches_the_goal(sim: Simulator) -> None:
-    names, reward = step(
-        sim, state(sim, "phd_area", carrying=True), ("wait_unload", (R, "phd_area"))
-    )
-    assert names[f"carrying({R})"] is False
-    assert names["delivered(phd_area)"] is True and names["goal"] is True
+    s = state(sim, "phd_area", carrying=True)
+    names, reward = step(sim, s, ("wait_unload", (R, "phd_area")))
+    assert names[f"carrying({R})"] is False and names["delivered(phd_area)"] is True
     assert reward == pytest.approx(1000.0 - 5.0)  # GOAL_REWARD - UNLOAD_SECONDS
+    # the goal fluent follows from the state, one step later, and stays
+    assert names["goal"] is False
+    s = sim.step(s, sim.actions_from_names({("wait_unload", (R, "phd_area")): True}),
+                 np.random.default_rng(0)).next_state  # fmt: skip
+    for _ in range(3):
+        out = sim.step(s, None, np.random.default_rng(0))
+        s = out.next_state
+        assert sim.state_to_names(s)["goal"] is True and float(out.reward[0]) == 0.0
 
 
 def test_wait_unload_only_with_papers_at_a_destination(sim: Simulator) -> None:
@@ -198,12 +209,10 @@ def test_wait_unload_only_with_papers_at_a_destination(sim: Simulator) -> None:
 def test_standing_still_costs_a_minute_before_the_goal_and_nothing_after(sim: Simulator) -> None:
     names, reward = step(sim, state(sim, "p1", carrying=True))
     assert reward == pytest.approx(-60.0) and names[f"carrying({R})"] is True
-    names, reward = step(sim, state(sim, "phd_area", goal=True))
-    assert reward == 0.0
-    assert names["goal"] is True  # the goal latches
-    names, reward = step(
-        sim, state(sim, "phd_area", goal=True), ("goto_waypoint", (R, "phd_area", "p2"))
-    )
+    names, reward = step(sim, state(sim, "phd_area", delivered=True))
+    assert reward == 0.0 and names["goal"] is True
+    move = ("goto_waypoint", (R, "phd_area", "p2"))
+    names, reward = step(sim, state(sim, "phd_area", delivered=True), move)
     assert names["goal"] is True and reward == pytest.approx(-2.0 * math.hypot(11, 3), abs=1e-3)
 
 
