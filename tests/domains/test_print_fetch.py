@@ -134,12 +134,15 @@ def test_each_experiment_starts_and_delivers_where_table_2_says(
 # ------------------------------------------------------------ actions
 
 
+PENDING = 60.0  # PENDING_SECONDS: every step before the delivery
+
+
 def test_goto_moves_and_costs_two_seconds_a_metre(sim: Simulator) -> None:
     names, reward = step(
         sim, state(sim, "prof_office"), ("goto_waypoint", (R, "prof_office", "p2"))
     )
     assert where(names) == [f"robot_at({R},p2)"]
-    assert reward == pytest.approx(-2.0 * math.hypot(11, 3), abs=1e-3)
+    assert reward == pytest.approx(-2.0 * math.hypot(11, 3) - PENDING, abs=1e-3)
     assert names[f"carrying({R})"] is False and names["goal"] is False
 
 
@@ -153,24 +156,24 @@ def test_goto_needs_the_robot_there_and_another_place(sim: Simulator) -> None:
 def test_wait_load_with_somebody_at_a_free_printer_loads_the_papers(sim: Simulator) -> None:
     names, reward = step(sim, state(sim, "p1", somebody=("p1",)), ("wait_load", (R, "p1")))
     assert names[f"carrying({R})"] is True
-    assert reward == pytest.approx(250.0 - 20.0)  # PAPERS_REWARD - LOAD_SECONDS
+    assert reward == pytest.approx(-20.0 - PENDING)  # LOAD_SECONDS
     assert where(names) == [f"robot_at({R},p1)"]
 
 
 def test_wait_load_with_nobody_there_fails_after_the_timeout(sim: Simulator) -> None:
     names, reward = step(sim, state(sim, "p2"), ("wait_load", (R, "p2")))
     assert names[f"carrying({R})"] is False
-    assert reward == pytest.approx(-60.0)  # NOBODY_SECONDS
+    assert reward == pytest.approx(-60.0 - PENDING)  # NOBODY_SECONDS
 
 
 def test_wait_load_at_a_busy_printer_fails_after_the_longer_timeout(sim: Simulator) -> None:
     s = state(sim, "p3", somebody=("p3",), busy=("p3",))
     names, reward = step(sim, s, ("wait_load", (R, "p3")))
     assert names[f"carrying({R})"] is False
-    assert reward == pytest.approx(-75.0)  # BUSY_SECONDS
+    assert reward == pytest.approx(-75.0 - PENDING)  # BUSY_SECONDS
     # busy and nobody: nobody to help is what the robot waits for
     names, reward = step(sim, state(sim, "p3", busy=("p3",)), ("wait_load", (R, "p3")))
-    assert names[f"carrying({R})"] is False and reward == pytest.approx(-60.0)
+    assert names[f"carrying({R})"] is False and reward == pytest.approx(-60.0 - PENDING)
 
 
 def test_wait_load_only_at_a_printer_with_an_empty_tray_before_the_goal(sim: Simulator) -> None:
@@ -188,7 +191,7 @@ def test_wait_unload_at_the_destination_delivers_and_reaches_the_goal(sim: Simul
     s = state(sim, "phd_area", carrying=True)
     names, reward = step(sim, s, ("wait_unload", (R, "phd_area")))
     assert names[f"carrying({R})"] is False and names["delivered(phd_area)"] is True
-    assert reward == pytest.approx(1000.0 - 5.0)  # GOAL_REWARD - UNLOAD_SECONDS
+    assert reward == pytest.approx(-5.0 - PENDING)  # UNLOAD_SECONDS; the last step pending
     # the goal fluent follows from the state, one step later, and stays
     assert names["goal"] is False
     s = sim.step(s, sim.actions_from_names({("wait_unload", (R, "phd_area")): True}),
@@ -208,7 +211,8 @@ def test_wait_unload_only_with_papers_at_a_destination(sim: Simulator) -> None:
 
 def test_standing_still_costs_a_minute_before_the_goal_and_nothing_after(sim: Simulator) -> None:
     names, reward = step(sim, state(sim, "p1", carrying=True))
-    assert reward == pytest.approx(-60.0) and names[f"carrying({R})"] is True
+    assert reward == pytest.approx(-60.0 - PENDING)  # IDLE_SECONDS
+    assert names[f"carrying({R})"] is True
     names, reward = step(sim, state(sim, "phd_area", delivered=True))
     assert reward == 0.0 and names["goal"] is True
     move = ("goto_waypoint", (R, "phd_area", "p2"))
@@ -290,7 +294,7 @@ async def test_plays_through_rddl_server_with_prost_framing(
         assert len(rows) == 1
         row = await settled(store, rows[0]["server_session_id"])
     metres = distance("prof_office", "p2") + distance("p2", "phd_area")
-    expected = -2.0 * metres - 60.0 * 18  # two moves, then 18 steps standing still
+    expected = -2.0 * metres - 60.0 * 18 - PENDING * 20  # two moves, 18 steps standing
     assert result.rounds == [pytest.approx(expected, abs=0.01)]
     assert row["status"] == "finished"
     assert row["total_reward"] == pytest.approx(expected, abs=0.01)
