@@ -4,7 +4,7 @@ VENV   ?= .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 
-.PHONY: install test test-fast demo bench lint clean
+.PHONY: install test test-fast demo bench lint clean experiments
 
 install: $(STAMP)
 
@@ -46,6 +46,12 @@ demo: install
 	for planner in noop random exact; do \
 		$(BIN)/rddl-client --port $$port --instance print_jobs_inst_1 --planner $$planner --seed 1 -q; \
 	done
+
+# The print-fetching robot study (docs/print-fetch.md): the paper's four experiments
+# through rddl-dispatch's simulated office, report in reports/print_fetch/. PROST joins
+# the approaches when PROST_BIN names its search program.
+experiments: install
+	$(BIN)/python -m ippc.experiments.print_fetch run --workers 2 --out reports/print_fetch
 
 bench: install
 	$(BIN)/python bench/parse.py

@@ -1,0 +1,8 @@
+(define (problem corridor-1) (:domain corridor)
+  (:objects hall kitchen office - room)
+  (:init (at hall) (= (total-cost) 0)
+         (= (cost hall office) 25) (= (cost office hall) 25)
+         (= (cost hall kitchen) 12) (= (cost kitchen hall) 12)
+         (= (cost kitchen office) 10) (= (cost office kitchen) 10))
+  (:goal (and (at office)))
+  (:metric minimize (total-cost)))
