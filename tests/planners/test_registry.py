@@ -67,7 +67,7 @@ def test_builtins_by_name() -> None:
 def test_unknown_name_lists_the_known_ones() -> None:
     with pytest.raises(
         PlannerError,
-        match=r"unknown planner 'nosuch' \(known planners: exact, mcts, noop, prost, random",
+        match=r"unknown planner 'nosuch' \(known planners: exact, fast-downward, mcts, noop, prost, random",
     ):
         find_planner("nosuch")
 
