@@ -60,6 +60,7 @@ DEFAULT_SEARCH = "astar(blind())"
 print-fetching problems are small enough that a heuristic buys nothing."""
 
 _PLAN_LINE = re.compile(r"^\(([^()]+)\)\s*$")
+_COPY_SUFFIX = re.compile(r"(__[oc][0-9_]+)+$")
 
 
 def driver_path() -> Path:
@@ -220,8 +221,9 @@ class FastDownwardPlanner(Planner):
         )
 
     def _rddl_action(self, name: str, args: Sequence[str]) -> tuple[str, tuple[str, ...]]:
-        # an all-outcomes copy of an operator is named <op>__o<i>...
-        base = name.split("__o", 1)[0]
+        # copies of an operator: <op>__o<i>_<j> (all-outcomes), <op>__c<cost> (groundings
+        # that cost differently)
+        base = _COPY_SUFFIX.sub("", name)
         if base not in self._actions:
             raise PlannerError(f"Fast Downward's plan has {name!r}, which is no action fluent")
         try:

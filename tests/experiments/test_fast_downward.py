@@ -55,3 +55,35 @@ def test_planner_is_registered_and_checks_its_options(tmp_path: Path) -> None:
         FastDownwardPlanner(depth="3")
     with pytest.raises(PlannerError, match="time_limit"):
         FastDownwardPlanner(time_limit="soon")
+
+
+# ------------------------------------------------------------ the baseline's runs
+
+
+def test_baseline_in_experiment_1_goes_to_the_nearest_printer_and_replans() -> None:
+    """The paper's story: the deterministic robot assumes somebody at every printer, drives
+    to p2 (the shortest route), waits in vain, plans again without p2 and fetches at p1."""
+    from ippc.experiments.print_fetch.office import EXPERIMENTS, distance
+    from ippc.experiments.print_fetch.run import APPROACHES, run_one
+
+    row = run_one(EXPERIMENTS[1], APPROACHES["fast-downward"], 0)
+    assert row.success and row.error == ""
+    assert row.first_printer == "p2"
+    assert (row.failed_actions, row.replans, row.steps) == (1, 1, 6)
+    metres = distance("prof_office", "p2") + distance("p2", "p1") + distance("p1", "phd_area")
+    assert row.distance_m == pytest.approx(metres, abs=1e-3)
+    # driving, the vain wait (60 s), the wait at p1 (20 s), the hand-over (5 s), and one
+    # sensing cycle (0.1 s at sensing's 10 Hz) per turn for the knowledge base to settle
+    assert row.execution_s == pytest.approx(2 * metres + 60 + 20 + 5 + 0.1 * row.steps, abs=1e-3)
+
+
+def test_baseline_in_experiment_3_waits_once_at_the_busy_printer() -> None:
+    from ippc.experiments.print_fetch.office import EXPERIMENTS, distance
+    from ippc.experiments.print_fetch.run import APPROACHES, run_one
+
+    row = run_one(EXPERIMENTS[3], APPROACHES["fast-downward"], 0)
+    assert row.success and row.first_printer == "p1"
+    assert (row.failed_actions, row.replans) == (1, 1)
+    metres = distance("dock", "p1") + distance("p1", "prof_office")
+    assert row.distance_m == pytest.approx(metres, abs=1e-3)
+    assert row.execution_s == pytest.approx(2 * metres + 75 + 20 + 5 + 0.1 * row.steps, abs=1e-3)
