@@ -28,6 +28,9 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+# rddl-batch's report helpers: matplotlib without a display, PNG + SVG per figure
+from ...batch.report import _pyplot
+from ...batch.report import _save as save_figure
 from ...batch.scoring import ci95
 from .office import EXPERIMENTS, PRINTERS, WAYPOINTS
 from .run import TIME_PER_STEP, RunRow
@@ -81,22 +84,8 @@ def _fmt(mean: float, half: float | None, digits: int = 1) -> str:
     return f"{mean:.{digits}f}" + ("" if half is None else f" ± {half:.{digits}f}")
 
 
-def _pyplot() -> Any:
-    try:
-        import matplotlib
-    except ImportError:
-        raise RuntimeError(
-            "the report's plots need matplotlib: pip install 'ippc[batch]'"
-        ) from None
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
-
-
 def _save(plt: Any, fig: Any, out: Path, stem: str) -> None:
-    for ext in ("png", "svg"):
-        fig.savefig(out / f"{stem}.{ext}", dpi=110, bbox_inches="tight")
+    save_figure(fig, out, stem)  # PNG and SVG, as rddl-batch's report writes them
     plt.close(fig)
 
 

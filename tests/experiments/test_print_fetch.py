@@ -225,3 +225,14 @@ def test_cli_runs_and_reports(tmp_path: Path) -> None:
     assert bad.exit_code != 0 and "no experiment 5" in bad.output
     noprost = CliRunner().invoke(main, ["run", "--approach", "prost"], env={"PROST_BIN": ""})
     assert noprost.exit_code != 0 and "needs a PROST binary" in noprost.output
+
+
+def test_prost_short_run_of_experiment_1() -> None:
+    """PROST through its launcher against the dispatcher, when a PROST binary is given."""
+    import os
+
+    binary = os.environ.get("PROST_BIN")
+    if not binary:
+        pytest.skip("no PROST: set PROST_BIN to PROST's search program (a release build)")
+    row = run_one(EXPERIMENTS[1], APPROACHES["prost"], 0, prost=binary)
+    _consistent(row, 1)
