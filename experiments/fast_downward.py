@@ -46,7 +46,7 @@ from typing import ClassVar
 import numpy as np
 
 from ..dispatch.dispatcher import draw_free_fluents
-from ..kb import KnowledgeBase
+from ..kb import KnowledgeBase, Update
 from ..planners.base import Observation, Planner, PlannerError, SessionInfo, WireFluent
 from ..rddl.model import STATE
 from ..rddl.simulator import State
@@ -174,6 +174,11 @@ class FastDownwardPlanner(Planner):
         # Fast Downward writes plans in lower case
         self._actions = {p.name.lower(): p.name for p in session.simulator.action_fluents}
         self._objects = {o.lower(): o for t in model.types.values() for o in t.members}
+        # where the robot is: the boolean state fluents named *_at whose last argument is a
+        # place (robot_at(r, w)); what the robot sees there it keeps when it forgets
+        self._locations = {
+            p.name for p in model.fluents(STATE) if p.name.endswith("_at") and p.arity >= 2
+        }
 
     def start_round(self, round_num: int) -> None:
         self._plan, self._expected = [], []
@@ -195,6 +200,11 @@ class FastDownwardPlanner(Planner):
             if kb.goal_holds():
                 return []
             self._make_plan(kb, obs.state)
+            if not self._plan and self._forget(kb):
+                # What the robot saw elsewhere is redrawn every step: with no plan on it,
+                # plan on the instance's start values there (it may find them changed).
+                log.info("fast-downward: no plan on what was seen; forgetting it and replanning")
+                self._make_plan(kb, kb.to_state())
         if not self._plan:
             return []  # no plan: stand still and try again next turn
         name, args = self._plan.pop(0)
@@ -219,6 +229,29 @@ class FastDownwardPlanner(Planner):
             self.plans,
             " ".join(f"{n}({','.join(a)})" for n, a in self._plan),
         )
+
+    def _forget(self, kb: KnowledgeBase) -> bool:
+        """Set the sampled fluents of every grounding that does not mention where the
+        robot is back to the instance's initial values; whether anything changed."""
+        assert self.session is not None
+        model = self.session.model
+        obs_facts = kb.facts()
+        here = {
+            args[-1]
+            for (name, args), value in obs_facts.items()
+            if value is True and name in self._locations
+        }
+        updates = []
+        for (name, args), value in obs_facts.items():
+            if name not in self._sampled or here & set(args):
+                continue
+            start = model.init_state.get((name, args), model.default_of(name))
+            if start != value:
+                updates.append(Update("set", name, args, start))
+        if not updates:
+            return False
+        kb.apply(updates, "forget")
+        return True
 
     def _rddl_action(self, name: str, args: Sequence[str]) -> tuple[str, tuple[str, ...]]:
         # copies of an operator: <op>__o<i>_<j> (all-outcomes), <op>__c<cost> (groundings

@@ -87,3 +87,15 @@ def test_baseline_in_experiment_3_waits_once_at_the_busy_printer() -> None:
     metres = distance("dock", "p1") + distance("p1", "prof_office")
     assert row.distance_m == pytest.approx(metres, abs=1e-3)
     assert row.execution_s == pytest.approx(2 * metres + 75 + 20 + 5 + 0.1 * row.steps, abs=1e-3)
+
+
+def test_baseline_forgets_what_it_saw_elsewhere_when_nothing_is_left() -> None:
+    """Experiment 4, seed 4008: every printer the robot tried was unhelpful when it waited,
+    so on what it saw the task has no plan; it forgets the other printers (redrawn every
+    step) and goes on trying until the papers come."""
+    from ippc.experiments.print_fetch.office import EXPERIMENTS
+    from ippc.experiments.print_fetch.run import APPROACHES, run_one
+
+    row = run_one(EXPERIMENTS[4], APPROACHES["fast-downward"], 8)
+    assert row.success and row.first_printer == "p2"
+    assert (row.failed_actions, row.replans) == (5, 5)
