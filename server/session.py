@@ -346,6 +346,13 @@ class Session:
             self._drop(str(err))
         except ProtocolError as err:
             self._drop(f"protocol error: {err}")
+        except Exception as err:
+            # A bug in an environment (a dispatcher's knowledge base or
+            # sensing, a simulator error that is not a SimulationError) ends
+            # this session, recorded with its reason, never the server and
+            # its other sessions; the traceback goes to the log.
+            log.error("%s: internal error", self.describe(), exc_info=True)
+            self._drop(f"internal error: {type(err).__name__}: {err}")
         except trio.Cancelled:
             self._end_store("interrupted", "server shut down")
             raise

@@ -6,16 +6,23 @@ import logging
 
 import pytest
 import trio
+from ippc.protocol import Actions
 from ippc.server.config import ServerConfig
+from ippc.server.environment import Episode, Outcome, SimulatedEpisode
+from ippc.server.registry import Instance, Registry
+from ippc.server.session import Services
+from ippc.server.store import ResultStore
 
 from .harness import (
     DECL,
+    NOOP,
     ROUND_REQUEST,
     RawClient,
     noop_session,
     root_of,
     running_server,
     session_request,
+    shared_registry,
 )
 
 pytestmark = pytest.mark.trio
@@ -152,3 +159,69 @@ async def test_garbage_then_good_clients() -> None:
                 await c.close()
             res = await noop_session(port)
     assert res["session_id"] == len(garbage) + 1
+
+
+class _BrokenEpisode(SimulatedEpisode):
+    """A simulated episode whose environment has a bug on the second turn."""
+
+    turns = 0
+
+    async def act(self, actions: Actions) -> Outcome:
+        self.turns += 1
+        if self.turns == 2:
+            raise RuntimeError("the environment broke")
+        return await super().act(actions)
+
+
+class _BrokenFor:
+    """A registry whose instance breaks for the client called 'broken'."""
+
+    def __init__(self, registry: Registry) -> None:
+        self.registry = registry
+        self.next_client = ""
+
+    def get(self, name: str) -> Instance:
+        inst = self.registry.get(name)
+        if self.next_client != "broken":
+            return inst
+
+        class Broken(Instance):
+            async def open(self, seed: int) -> Episode:
+                sim, codec = await inst.compiled()
+                return _BrokenEpisode(inst, sim, codec, seed)
+
+        return Broken(inst.name, inst.model, inst.task)
+
+
+async def test_an_environment_that_raises_ends_its_session_only(tmp_path, caplog) -> None:
+    caplog.set_level(logging.INFO)
+    registry = _BrokenFor(shared_registry())
+    config = cfg()
+    store = ResultStore(tmp_path / "r.db")
+    services = Services(config, registry, store=store)  # type: ignore[arg-type]
+    try:
+        async with running_server(config, registry, services) as (port, _):  # type: ignore[arg-type]
+            with trio.fail_after(20):
+                registry.next_client = "broken"
+                c = await RawClient.connect(port)
+                await c.send(session_request(client="broken"))
+                assert root_of(await c.recv()) == "session-init"
+                await c.send(ROUND_REQUEST)
+                assert root_of(await c.recv()) == "round-init"
+                for _ in range(2):
+                    assert root_of(await c.recv()) == "turn"
+                    await c.send(NOOP)
+                await c.expect_eof()  # the server closes this session only
+                await c.close()
+                registry.next_client = ""
+                healthy = await noop_session(port, client="healthy")
+        assert len(healthy["rounds"]) == 2
+        broken, good = store.sessions()
+        assert broken["status"] == "dropped"
+        assert broken["reason"] == "internal error: RuntimeError: the environment broke"
+        assert good["status"] == "finished"
+        (rnd,) = store.rounds(broken["id"])
+        assert len(store.steps(rnd["id"])) == 1  # the turn before the bug is kept
+    finally:
+        store.close()
+    assert any("internal error" in r.getMessage() and r.exc_info for r in caplog.records)
