@@ -9,6 +9,7 @@ from pathlib import Path
 
 import click
 
+from ..server.store import StoreError
 from .experiment import ExperimentError, load_experiment
 from .progress import format_duration
 from .results import BatchStore, RoundRecord
@@ -16,12 +17,21 @@ from .scoring import RULES, ScoreError, ScoreTable, score
 
 __all__ = ["main"]
 
+DEFAULT_DB = Path("results.sqlite")
 _DB = click.option(
     "--db",
     type=click.Path(dir_okay=False, path_type=Path),
-    default=Path("results.sqlite"),
+    default=DEFAULT_DB,
     show_default=True,
     help="The SQLite result database (the schema rddl-server writes, with rddl-batch's jobs).",
+)
+# score and report: without --db but with --rddlsim-log, only the logs are read (a
+# results.sqlite that happens to be in the folder is not mixed in)
+_READ_DB = click.option(
+    "--db",
+    type=click.Path(dir_okay=False, path_type=Path),
+    default=None,
+    help=f"The result database to score (default: {DEFAULT_DB}, unless --rddlsim-log is given).",
 )
 _RULES = click.option(
     "--rules",
@@ -43,6 +53,14 @@ def _setup_logging(verbose: bool) -> None:
 @click.group(context_settings={"help_option_names": ["-h", "--help"]})
 def main() -> None:
     """Competition-style experiments: planners x instances x rounds, IPPC scores, reports."""
+
+
+def _open_store(db: Path) -> BatchStore:
+    """The database, or a one-line error naming it (not SQLite, a newer schema)."""
+    try:
+        return BatchStore(db)
+    except (StoreError, OSError) as err:
+        raise click.ClickException(f"--db {db}: {err}") from None
 
 
 def _host_port(value: str | None, what: str) -> tuple[str, int] | None:
@@ -115,6 +133,8 @@ def run(
         for problem in err.problems:
             click.echo(problem, err=True)
         raise SystemExit(2) from None
+    except StoreError as err:
+        raise click.ClickException(f"--db {db}: {err}") from None
     done = summary.skipped + summary.finished
     click.echo(
         f"{experiment.name}: {done}/{summary.total} sessions done ({summary.finished} now, "
@@ -126,6 +146,14 @@ def run(
         raise SystemExit(130)
 
 
+def _database(db: Path | None, logs: tuple[Path, ...]) -> Path | None:
+    """The database score and report read: --db, else results.sqlite unless only
+    rddlsim logs are given; None when there is none to read."""
+    if db is None:
+        return None if logs else DEFAULT_DB
+    return db if db.exists() or not logs else None
+
+
 def _records(
     db: Path | None, logs: tuple[Path, ...], experiment: str | None
 ) -> tuple[list[RoundRecord], list[tuple[str, str, str]]]:
@@ -133,10 +161,15 @@ def _records(
 
     records: list[RoundRecord] = []
     expected: list[tuple[str, str, str]] = []
-    if db is not None and (db.exists() or not logs):
+    if db is not None:
         if not db.exists():
             raise click.ClickException(f"--db {db}: no such file")
-        with BatchStore(db) as store:
+        with _open_store(db) as store:
+            if experiment is not None and experiment not in store.experiments():
+                known = ", ".join(store.experiments()) or "none"
+                raise click.ClickException(
+                    f"--experiment {experiment}: not in {db} (experiments there: {known})"
+                )
             records += store.round_records(experiment)
             expected += store.expected(experiment)
     for path in logs:
@@ -148,7 +181,7 @@ def _records(
 
 
 def _table(
-    db: Path, logs: tuple[Path, ...], experiment: str | None, rules: str, rounds: int | None
+    db: Path | None, logs: tuple[Path, ...], experiment: str | None, rules: str, rounds: int | None
 ) -> tuple[ScoreTable, list[RoundRecord]]:
     records, expected = _records(db, logs, experiment)
     try:
@@ -176,14 +209,14 @@ _ROUNDS = click.option(
 
 
 @main.command(name="score")
-@_DB
+@_READ_DB
 @_RULES
 @_LOGS
 @_EXPERIMENT
 @_ROUNDS
 @click.option("--json", "as_json", is_flag=True, help="Print the scores as JSON.")
 def score_cmd(
-    db: Path,
+    db: Path | None,
     rules: str,
     rddlsim_logs: tuple[Path, ...],
     experiment: str | None,
@@ -192,6 +225,7 @@ def score_cmd(
 ) -> None:
     """Print IPPC scores per planner (overall and per domain)."""
     _setup_logging(False)
+    db = _database(db, rddlsim_logs)
     table, _ = _table(db, rddlsim_logs, experiment, rules, rounds)
     if as_json:
         click.echo(json.dumps(table.as_json(), indent=2))
@@ -213,7 +247,7 @@ def score_cmd(
 
 
 @main.command()
-@_DB
+@_READ_DB
 @_RULES
 @_LOGS
 @_EXPERIMENT
@@ -226,7 +260,7 @@ def score_cmd(
 )
 @click.option("--title", default="rddl-batch report", show_default=True)
 def report(
-    db: Path,
+    db: Path | None,
     rules: str,
     rddlsim_logs: tuple[Path, ...],
     experiment: str | None,
@@ -238,10 +272,11 @@ def report(
     from .report import write_report
 
     _setup_logging(False)
+    db = _database(db, rddlsim_logs)
     table, records = _table(db, rddlsim_logs, experiment, rules, rounds)
     times: list[tuple[str, str, str, float]] = []
-    if db.exists():
-        with BatchStore(db) as store:
+    if db is not None:
+        with _open_store(db) as store:
             times = store.turn_times(experiment)
     try:
         path = write_report(table, records, times, out, title=title)

@@ -54,6 +54,7 @@ __all__ = [
     "SCHEMA_VERSION",
     "SESSION_STATUSES",
     "ResultStore",
+    "StoreError",
     "decode_fluents",
     "encode_fluents",
 ]
@@ -196,6 +197,12 @@ def _opt_real(x: object | None) -> float | None:
     return None if x is None else _real(x)
 
 
+class StoreError(RuntimeError):
+    """A file that cannot be opened as a result store: not an SQLite database, a
+    schema newer than this ippc's, or locked beyond the busy timeout. The message
+    is SQLite's (or says which version); callers add the path."""
+
+
 def _is_busy(err: sqlite3.OperationalError) -> bool:
     text = str(err)
     return "database is locked" in text or "database is busy" in text
@@ -208,6 +215,7 @@ class ResultStore:
     ``":memory:"`` (tests); a missing parent folder of a file is created. The store may
     be used from any thread (calls are serialised by a lock). ``busy_timeout_ms`` bounds
     how long a write waits for another process that holds the database's write lock.
+    A file that cannot be opened as a store raises `StoreError` (and is not changed).
     """
 
     def __init__(
@@ -247,6 +255,9 @@ class ResultStore:
                     if not _is_busy(err) or time.monotonic() >= deadline:
                         raise
                     time.sleep(min(0.2, 0.005 * 2**attempt) * random.uniform(0.5, 1.0))
+        except sqlite3.DatabaseError as err:
+            self._conn.close()
+            raise StoreError(str(err)) from None
         except BaseException:
             self._conn.close()
             raise
@@ -263,7 +274,7 @@ class ResultStore:
         with self._tx() as cur:
             version = cur.execute("PRAGMA user_version").fetchone()[0]
             if version > SCHEMA_VERSION:
-                raise RuntimeError(
+                raise StoreError(
                     f"result store {self.path} has schema version {version}; this ippc "
                     f"knows only up to {SCHEMA_VERSION}"
                 )

@@ -18,7 +18,13 @@ from typing import Any
 
 import numpy as np
 import pytest
-from ippc.server.store import SCHEMA_VERSION, ResultStore, decode_fluents, encode_fluents
+from ippc.server.store import (
+    SCHEMA_VERSION,
+    ResultStore,
+    StoreError,
+    decode_fluents,
+    encode_fluents,
+)
 
 
 def new_session(store: ResultStore, **over: object) -> int:
@@ -661,14 +667,22 @@ def test_setup_is_retried_on_a_lock_and_only_on_a_lock(
 
     calls.clear()
     monkeypatch.setattr(ResultStore, "_setup", setup_failing("disk I/O error", math.inf))
-    with pytest.raises(sqlite3.OperationalError, match="disk I/O"):
+    with pytest.raises(StoreError, match="disk I/O"):
         ResultStore(tmp_path / "b.db")
     assert len(calls) == 1
 
     calls.clear()
     monkeypatch.setattr(ResultStore, "_setup", setup_failing("database is locked", math.inf))
     t0 = time.monotonic()
-    with pytest.raises(sqlite3.OperationalError, match="locked"):
+    with pytest.raises(StoreError, match="locked"):
         ResultStore(tmp_path / "c.db", busy_timeout_ms=300)
     assert 0.25 < time.monotonic() - t0 < 10
     assert 2 < len(calls) < 100
+
+
+def test_a_file_that_is_not_sqlite_is_a_store_error_and_is_left_alone(tmp_path: Path) -> None:
+    path = tmp_path / "notes.sqlite"
+    path.write_bytes(b"my notes, not a database\n" * 10)
+    with pytest.raises(StoreError, match="^file is not a database$"):
+        ResultStore(path)
+    assert path.read_bytes() == b"my notes, not a database\n" * 10

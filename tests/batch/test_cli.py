@@ -1,0 +1,100 @@
+"""rddl-batch's answers to bad input: one line naming the file, never a traceback."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import pytest
+from click.testing import CliRunner
+from ippc.batch import BatchStore, Job, JobResult, PlannerSpec
+from ippc.batch.cli import main
+
+from .conftest import REPO
+
+LOG = REPO / "tests" / "data" / "batch" / "rddlsim-logs-2323.log"
+SMALL = REPO / "examples" / "small.toml"
+
+
+def invoke(*args: str) -> tuple[int, str]:
+    result = CliRunner().invoke(main, list(args))
+    assert result.exception is None or isinstance(result.exception, SystemExit), result.exc_info
+    return result.exit_code, result.output
+
+
+def played(db: Path, planner: str, instance: str, rewards: list[float]) -> None:
+    """A finished job of experiment 'e' with these round rewards."""
+    job = Job(
+        "e", PlannerSpec(planner, planner), instance, "game_of_life_mdp", (), False, 2, 60.0, 1, 2
+    )
+    now = time.time()
+    session = {
+        "server_session_id": 1,
+        "instance": instance,
+        "client_name": planner,
+        "seed": 1,
+        "num_rounds": len(rewards),
+        "time_allowed_ms": 60000.0,
+        "peer": "127.0.0.1:1",
+        "no_header": False,
+        "started_at": now,
+        "ended_at": now,
+        "status": "finished",
+        "total_reward": sum(rewards),
+        "rounds_used": len(rewards),
+        "reason": None,
+        "owner": "test",
+    }
+    rounds = [
+        {
+            "round_num": i,
+            "counted": True,
+            "started_at": now,
+            "ended_at": now,
+            "status": "finished",
+            "reward": r,
+            "turns_used": 5,
+            "steps": [],
+        }
+        for i, r in enumerate(rewards, 1)
+    ]
+    with BatchStore(db) as store:
+        store.register([job])
+        store.import_result("e", JobResult(job.key, "finished", None, now, now, session, rounds))
+
+
+@pytest.mark.parametrize(
+    "args",
+    [
+        ("score", "--db", "{db}"),
+        ("score", "--db", "{db}", "--json"),
+        ("report", "--db", "{db}", "--out", "{tmp}/report"),
+        ("run", str(SMALL), "--db", "{db}"),
+    ],
+)
+def test_a_file_that_is_not_sqlite_gets_one_line(tmp_path: Path, args: tuple[str, ...]) -> None:
+    db = tmp_path / "notes.sqlite"
+    db.write_text("not a database\n")
+    code, out = invoke(*(a.format(db=db, tmp=tmp_path) for a in args))
+    assert code == 1
+    assert out == f"Error: --db {db}: file is not a database\n"
+
+
+def test_logs_alone_are_scored_alone(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    # a results.sqlite in the folder holds a noop baseline for an instance of the log
+    monkeypatch.chdir(tmp_path)
+    played(tmp_path / "results.sqlite", "noop", "game_of_life_inst_mdp__1", [10.0, 12.0])
+    code, out = invoke("score", "--rddlsim-log", str(LOG))
+    assert code == 1 and "no instance could be scored" in out  # the log has no baseline
+    code, out = invoke("score", "--rddlsim-log", str(LOG), "--db", "results.sqlite")
+    assert code == 0 and "javaclient" in out  # asked for: both, in one table
+    code, out = invoke("score")  # no log: results.sqlite is the default
+    assert code == 0 and "noop" in out
+
+
+def test_an_unknown_experiment_names_those_there(tmp_path: Path) -> None:
+    db = tmp_path / "r.sqlite"
+    played(db, "noop", "game_of_life_inst_mdp__1", [10.0])
+    code, out = invoke("score", "--db", str(db), "--experiment", "nope")
+    assert code == 1
+    assert out == f"Error: --experiment nope: not in {db} (experiments there: e)\n"
