@@ -14,8 +14,9 @@ import trio
 
 from ..client.cli import parse_planner_options
 from ..kb import KBError, KnowledgeBase
-from ..planners.base import PlannerError, find_planner
+from ..planners.base import PlannerError, make_planner
 from ..rddl import RDDLError
+from ..server.store import ResultStore, StoreError
 from .config import SensingConfig, SensingConfigError
 from .run import (
     DEFAULT_ROUNDS,
@@ -63,7 +64,12 @@ def print_report(report: RunReport) -> None:
 )
 @click.option("--simulate", is_flag=True, help="Run the whole loop in the simulated world.")
 @click.option("--seed", default=0, show_default=True, help="Seed of the simulated world.")
-@click.option("--host", default="127.0.0.1", show_default=True)
+@click.option(
+    "--host",
+    default="127.0.0.1",
+    show_default=True,
+    help="Address to listen on (and of the knowledge base's socket).",
+)
 @click.option("--port", default=2323, show_default=True, help="TCP port; 0 picks a free one.")
 @click.option(
     "--planner",
@@ -107,15 +113,25 @@ def print_report(report: RunReport) -> None:
     type=click.Path(dir_okay=False, path_type=Path),
     help="SQLite result store (every turn, with outcomes).",
 )
-@click.option("--json-out", type=click.Path(dir_okay=False, path_type=Path))
+@click.option(
+    "--json-out",
+    type=click.Path(dir_okay=False, path_type=Path),
+    help="Write the run's report as JSON to this file.",
+)
 @click.option(
     "--plan-of",
     "plan_of",
     type=click.Path(exists=True, dir_okay=False, path_type=Path),
     help="Print the executed plan of a session recorded in this result store, and exit.",
 )
-@click.option("--session", "session_id", type=int, default=None, help="With --plan-of: which.")
-@click.option("-q", "--quiet", is_flag=True)
+@click.option(
+    "--session",
+    "session_id",
+    type=int,
+    default=None,
+    help="With --plan-of: the session's id in the store (default: the last one).",
+)
+@click.option("-q", "--quiet", is_flag=True, help="Log warnings only.")
 def main(
     domain: Path | None,
     instance: Path | None,
@@ -158,11 +174,6 @@ def main(
         raise click.BadParameter("must be at least 1", param_hint="--rounds")
     spec: PlannerSpec | None = None
     if planner is not None or prost_bin is not None:
-        if planner is not None:
-            try:
-                find_planner(planner)
-            except PlannerError as err:
-                raise click.ClickException(str(err)) from None
         spec = PlannerSpec(
             name=planner or "prost",
             options=parse_planner_options(planner_options),
@@ -170,6 +181,13 @@ def main(
             no_header=no_header,
             seed=seed,
         )
+        _check_planner(spec)
+    elif planner_options:
+        raise click.BadParameter(
+            "options for which planner? give --planner or --prost", param_hint="--planner-option"
+        )
+    if db is not None:
+        _check_db(db)
     if simulate:
         if sensing_path is not None or robot_file is not None:
             raise click.BadParameter(
@@ -208,6 +226,27 @@ def main(
     print_report(report)
     if json_out is not None:
         json_out.write_text(json.dumps(report.as_dict(), indent=2) + "\n")
+
+
+def _check_planner(spec: PlannerSpec) -> None:
+    """Make the planner once, so that an unknown name, a bad option or a
+    missing PROST binary is refused before anything listens (the planner
+    the run starts is made again, fresh)."""
+    options = dict(spec.options)
+    if spec.prost is not None:
+        options["binary"] = spec.prost
+    try:
+        make_planner("prost" if spec.prost is not None else spec.name, options)
+    except PlannerError as err:
+        raise click.ClickException(str(err)) from None
+
+
+def _check_db(db: Path) -> None:
+    """Open (or create) the result store now: a bad file gets one line."""
+    try:
+        ResultStore(db).close()
+    except (StoreError, OSError) as err:
+        raise click.ClickException(f"--db {db}: {err}") from None
 
 
 def _robot(
@@ -281,6 +320,8 @@ def _print_plan(db: Path, session: int | None) -> None:
         plan = executed_plan(db, session)
     except KeyError as err:
         raise click.ClickException(str(err.args[0])) from None
+    except StoreError as err:
+        raise click.ClickException(f"--plan-of {db}: {err}") from None
     for e in plan:
         line = f"{e['round']:>3} {e['turn']:>4}  {e['action']:<40} {e['outcome']}"
         if e.get("message"):

@@ -365,6 +365,19 @@ class RobotFileError(ValueError):
     """A robot file that cannot be loaded; the message says why."""
 
 
+def _place(path: Path, err: BaseException) -> str:
+    """``file:line`` of the last frame of `err`'s traceback that is in the
+    robot file (where its code went wrong), else the file's name."""
+    import traceback
+
+    target = str(path.resolve())
+    line = None
+    for frame in traceback.extract_tb(err.__traceback__):
+        if frame.filename and str(Path(frame.filename).resolve()) == target:
+            line = frame.lineno
+    return f"{path}:{line}" if line is not None else str(path)
+
+
 def load_robot_file(path: str | Path) -> Callable[[Robot], Any]:
     """The `setup(robot)` function of a Python file."""
     import importlib.util
@@ -378,8 +391,11 @@ def load_robot_file(path: str | Path) -> Callable[[Robot], Any]:
         spec.loader.exec_module(module)
     except FileNotFoundError:
         raise RobotFileError(f"{path}: no such file") from None
+    except SyntaxError as err:
+        where = f"{path}:{err.lineno or 1}:{err.offset or 1}"
+        raise RobotFileError(f"{where}: SyntaxError: {err.msg}") from None
     except Exception as err:
-        raise RobotFileError(f"{path}: {type(err).__name__}: {err}") from err
+        raise RobotFileError(f"{_place(path, err)}: {type(err).__name__}: {err}") from err
     setup = getattr(module, "setup", None)
     if not callable(setup):
         raise RobotFileError(f"{path}: defines no setup(robot) function")
@@ -406,9 +422,8 @@ def build_robot(
         try:
             setup(robot)
         except Exception as err:
-            raise RobotFileError(
-                f"{robot_file}: setup failed: {type(err).__name__}: {err}"
-            ) from err
+            where = _place(Path(robot_file), err)
+            raise RobotFileError(f"{where}: setup failed: {type(err).__name__}: {err}") from err
     dispatcher = Dispatcher(
         kb, handlers, sensing, clock=clock, settle_limit=settle_limit, stop_at_goal=stop_at_goal
     )
@@ -417,24 +432,45 @@ def build_robot(
 
 def executed_plan(db: str | Path, session: int | None = None) -> list[dict[str, Any]]:
     """The executed plan of a dispatcher session in a result store (the
-    last session when `session` is None): one entry per dispatched action,
-    with its round, turn, outcome and message."""
+    last dispatcher session when `session` is None): one entry per
+    dispatched action, with its round, turn, outcome and message. A store
+    without such a session, or a `session` that rddl-server played (its
+    steps have no outcomes), raises KeyError saying so."""
     from ..server.store import ResultStore
 
     with ResultStore(db) as store:
         sessions = store.sessions()
         if not sessions:
             raise KeyError(f"{db}: no session recorded")
-        chosen = sessions[-1] if session is None else store.session(session)
-        plan: list[dict[str, Any]] = []
-        for rnd in store.rounds(chosen["id"]):
-            for step in store.steps(rnd["id"]):
-                outcome = step["outcome"]
-                if outcome is None:
-                    continue  # a simulated step (rddl-server's)
-                for entry in outcome.get("actions", []):
-                    plan.append({"session": chosen["id"], **entry})
-        return plan
+        if session is not None:
+            chosen = [store.session(session)]
+        else:
+            chosen = list(reversed(sessions))
+        for row in chosen:
+            plan = _plan_of(store, row["id"])
+            if plan is not None:
+                return plan
+        if session is not None:
+            raise KeyError(
+                f"{db}: session {session} was not played by rddl-dispatch (no step has an outcome)"
+            )
+        raise KeyError(f"{db}: no rddl-dispatch session recorded ({len(sessions)} other(s))")
+
+
+def _plan_of(store: Any, session: int) -> list[dict[str, Any]] | None:
+    """The executed plan of one session; None when no step of it has an
+    outcome (rddl-server's sessions)."""
+    plan: list[dict[str, Any]] = []
+    dispatched = False
+    for rnd in store.rounds(session):
+        for step in store.steps(rnd["id"]):
+            outcome = step["outcome"]
+            if outcome is None:
+                continue  # a simulated step (rddl-server's)
+            dispatched = True
+            for entry in outcome.get("actions", []):
+                plan.append({"session": session, **entry})
+    return plan if dispatched else None
 
 
 def build_simulation(

@@ -177,10 +177,75 @@ def test_the_cli_reports_a_bad_sensing_config_or_robot_file(tmp_path: Path) -> N
         main, [str(DOMAIN), str(ONE), "--sensing", str(config), "--robot", str(robot)]
     )
     assert failing.exit_code == 1
-    assert f"{robot}: setup failed: RuntimeError: no robot here" in failing.output
+    assert f"{robot}:2: setup failed: RuntimeError: no robot here" in failing.output
     robot.write_text("x = 1\n")
     empty = runner.invoke(main, [str(DOMAIN), str(ONE), "--robot", str(robot)])
     assert empty.exit_code == 1 and "defines no setup(robot) function" in empty.output
+    robot.write_text("import trio\n\ndef setup(robot)\n    pass\n")
+    syntax = runner.invoke(main, [str(DOMAIN), str(ONE), "--robot", str(robot)])
+    assert syntax.exit_code == 1
+    assert syntax.output == f"Error: {robot}:3:17: SyntaxError: expected ':'\n"
+    robot.write_text("import trio\nspeed = top_speed / 2\n")
+    name = runner.invoke(main, [str(DOMAIN), str(ONE), "--robot", str(robot)])
+    assert name.output == f"Error: {robot}:2: NameError: name 'top_speed' is not defined\n"
+
+
+def test_the_cli_refuses_a_planner_it_cannot_start_before_it_listens(tmp_path: Path) -> None:
+    runner = CliRunner()
+    args = [str(DOMAIN), str(ONE), "--simulate", "-q"]
+    bad_option = runner.invoke(main, [*args, "--planner", "mcts", "--planner-option", "foo=1"])
+    assert bad_option.exit_code == 1  # it played an empty session and exited 0
+    assert bad_option.output.startswith("Error: planner 'mcts' has no option 'foo'")
+    no_prost = runner.invoke(main, [*args, "--prost", str(tmp_path / "search")])
+    assert no_prost.exit_code == 1
+    assert no_prost.output == f"Error: prost: PROST binary not found: {tmp_path / 'search'}\n"
+    orphan = runner.invoke(main, [*args, "--planner-option", "seed=1"])
+    assert orphan.exit_code == 2 and "give --planner or --prost" in orphan.output
+
+
+def test_the_cli_answers_a_file_that_is_not_a_store_with_one_line(tmp_path: Path) -> None:
+    notes = tmp_path / "notes.db"
+    notes.write_text("not a database\n")
+    runner = CliRunner()
+    run = runner.invoke(main, [str(DOMAIN), str(ONE), "--simulate", "--db", str(notes)])
+    assert (run.exit_code, run.output) == (1, f"Error: --db {notes}: file is not a database\n")
+    plan = runner.invoke(main, ["--plan-of", str(notes)])
+    assert (plan.exit_code, plan.output) == (
+        1,
+        f"Error: --plan-of {notes}: file is not a database\n",
+    )
+
+
+def test_plan_of_skips_sessions_rddl_server_played(tmp_path: Path) -> None:
+    from ippc.server.store import ResultStore
+
+    db = tmp_path / "runs.db"
+    simulate(DOMAIN, ONE, seed=1, planner=PlannerSpec("exact"), rounds=1, db=db)
+    with ResultStore(db) as store:  # a session rddl-server played afterwards, in the same file
+        sid = store.start_session(
+            server_session_id=1,
+            instance="courier_one",
+            client_name="noop",
+            seed=0,
+            num_rounds=1,
+            time_allowed_ms=1000.0,
+            peer="127.0.0.1:1",
+            no_header=False,
+            started_at=0.0,
+        )
+        rnd = store.start_round(sid, round_num=1, counted=True, started_at=0.0)
+        store.record_step(
+            rnd,
+            turn_num=1,
+            state=[],
+            actions=[],
+            reward=0.0,
+            turn_sent_at=0.0,
+            actions_received_at=0.0,
+        )
+    assert plan(executed_plan(db)) == PLAN_SEED_1  # the last dispatcher session
+    with pytest.raises(KeyError, match=f"session {sid} was not played by rddl-dispatch"):
+        executed_plan(db, sid)
 
 
 @pytest.mark.alone
