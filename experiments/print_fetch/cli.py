@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import os
 import sys
 import time
@@ -131,6 +132,11 @@ def run(which: str, runs: int, prior_runs: int, names: tuple[str, ...], prost: P
 
     rows = run_many(jobs, prost=binary, workers=workers, progress=progress)
     seconds = time.perf_counter() - started
+    out.mkdir(parents=True, exist_ok=True)
+    # how long the runs took, for `report` to say again
+    (out / "run.json").write_text(
+        json.dumps({"seconds": round(seconds, 1), "workers": workers, "runs": len(rows)}) + "\n"
+    )
     path = write_report(rows, out, seconds=seconds, workers=workers, plots=not no_plots)
     click.echo(f"report: {path} ({seconds:.0f} s)")
 
@@ -149,7 +155,15 @@ def report(out: Path, no_plots: bool) -> None:
     source = out / "runs_detail.csv"
     if not source.is_file():
         raise click.UsageError(f"{source}: no such file (run the experiments first)")
-    path = write_report(read_rows(source), out, plots=not no_plots)
+    meta = out / "run.json"
+    timing = json.loads(meta.read_text()) if meta.is_file() else {}
+    path = write_report(
+        read_rows(source),
+        out,
+        seconds=timing.get("seconds"),
+        workers=timing.get("workers"),
+        plots=not no_plots,
+    )
     click.echo(f"report: {path}")
 
 

@@ -117,9 +117,10 @@ def _first_printer_plot(
         n = totals[name]
         shares = [counts[name][p] / n if n else 0.0 for p in printers]
         lows, highs = zip(*(wilson(counts[name][p], n) for p in printers), strict=True)
+        # (at a share of 0 or 1 the interval's end equals it up to rounding: never below 0)
         err = [
-            [s - lo for s, lo in zip(shares, lows, strict=True)],
-            [hi - s for s, hi in zip(shares, highs, strict=True)],
+            [max(0.0, s - lo) for s, lo in zip(shares, lows, strict=True)],
+            [max(0.0, hi - s) for s, hi in zip(shares, highs, strict=True)],
         ]
         xs = [j + (i - (len(names) - 1) / 2) * width for j in range(len(printers))]
         ax.bar(xs, shares, width, yerr=err, capsize=3, label=f"{name} (n={n})")
