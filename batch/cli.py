@@ -136,9 +136,15 @@ def run(
     except StoreError as err:
         raise click.ClickException(f"--db {db}: {err}") from None
     done = summary.skipped + summary.finished
+    failed = f"{summary.failed} failed"
+    if summary.failed_before:
+        failed += (
+            f" ({summary.failed_before} more failed before and were not played again:"
+            " --retry-failed)"
+        )
     click.echo(
         f"{experiment.name}: {done}/{summary.total} sessions done ({summary.finished} now, "
-        f"{summary.skipped} before), {summary.failed} failed, {format_duration(summary.seconds)}; "
+        f"{summary.skipped} before), {failed}, {format_duration(summary.seconds)}; "
         f"results in {db}"
     )
     if summary.interrupted:

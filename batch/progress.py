@@ -49,8 +49,10 @@ class Progress:
         self._last_draw = 0.0
         self._width = 0
 
-    def start(self, total: int, done: int) -> None:
-        self.total, self.done = total, done
+    def start(self, total: int, done: int, failed: int = 0) -> None:
+        """Counts at the start of a run: `done` jobs ended before it (`failed` of them
+        failed)."""
+        self.total, self.done, self.failed = total, done, failed
         self._t0 = time.monotonic()
         self.draw(force=True)
 

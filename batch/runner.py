@@ -46,11 +46,12 @@ class BatchSummary:
     """What a run did."""
 
     total: int  # jobs in the experiment
-    skipped: int  # already done before this run
+    skipped: int  # already done before this run (finished or timed out)
     finished: int  # done in this run (finished or timed out)
-    failed: int
+    failed: int  # failed in this run
     interrupted: bool
     seconds: float
+    failed_before: int = 0  # failed in an earlier run and not played again (no retry_failed)
 
 
 def _worker_init() -> None:
@@ -188,9 +189,10 @@ def run_batch(
         status = {row.job_key: row.status for row in store.jobs(experiment.name)}
         again = DONE if retry_failed else (*DONE, "failed")
         todo = [j for j in all_jobs if status.get(j.key) not in again]
-        skipped = len(all_jobs) - len(todo)
+        skipped = sum(1 for j in all_jobs if status.get(j.key) in DONE)
+        failed_before = len(all_jobs) - len(todo) - skipped
         prog = progress or Progress(total=len(all_jobs), done=skipped, stream=sys.stderr)
-        prog.start(total=len(all_jobs), done=skipped)
+        prog.start(total=len(all_jobs), done=skipped + failed_before, failed=failed_before)
         finished = failed = 0
         interrupted = False
 
@@ -223,5 +225,11 @@ def run_batch(
         finally:
             prog.close()
     return BatchSummary(
-        len(all_jobs), skipped, finished, failed, interrupted, time.monotonic() - t0
+        len(all_jobs),
+        skipped,
+        finished,
+        failed,
+        interrupted,
+        time.monotonic() - t0,
+        failed_before,
     )

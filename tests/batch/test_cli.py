@@ -98,3 +98,37 @@ def test_an_unknown_experiment_names_those_there(tmp_path: Path) -> None:
     code, out = invoke("score", "--db", str(db), "--experiment", "nope")
     assert code == 1
     assert out == f"Error: --experiment nope: not in {db} (experiments there: e)\n"
+
+
+def test_a_failed_session_is_recorded_the_batch_goes_on_and_reruns_say_so(
+    tmp_path: Path,
+) -> None:
+    instance = REPO / "domains" / "print_jobs" / "instance1.rddl"
+    exp = tmp_path / "fail.toml"
+    exp.write_text(
+        f'rounds = 1\ntimeout = 30\ninstances = ["{instance}"]\n'
+        "[planners.crash]\ncommand = \"sh -c 'exit 3' {port}\"\n"
+    )
+    db = tmp_path / "fail.sqlite"
+    code, out = invoke("run", str(exp), "--db", str(db))
+    assert code == 0
+    assert out.startswith("fail: 2/3 sessions done (2 now, 0 before), 1 failed, ")
+    with BatchStore(db) as store:
+        rows = {j.planner: j for j in store.jobs()}
+    assert {p: j.status for p, j in rows.items()} == {
+        "noop": "finished",
+        "random": "finished",
+        "crash": "failed",
+    }
+    log = db.with_name("fail.sqlite.logs") / "crash@print_jobs_inst_1.log"
+    assert rows["crash"].reason == f"the command exited with status 3 (output: {log})"
+    # again: nothing is played, and the line still counts the failure
+    code, out = invoke("run", str(exp), "--db", str(db))
+    assert out.startswith(
+        "fail: 2/3 sessions done (0 now, 2 before), 0 failed (1 more failed before and were"
+        " not played again: --retry-failed), "
+    )
+    code, out = invoke("run", str(exp), "--db", str(db), "--retry-failed")
+    assert out.startswith("fail: 2/3 sessions done (0 now, 2 before), 1 failed, ")
+    with BatchStore(db) as store:
+        assert {j.planner: j.attempts for j in store.jobs()} == {"noop": 1, "random": 1, "crash": 2}
