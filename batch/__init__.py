@@ -16,6 +16,7 @@ from .experiment import (
     Experiment,
     ExperimentError,
     PlannerSpec,
+    check_experiment,
     load_experiment,
     parse_experiment,
 )
@@ -41,6 +42,7 @@ __all__ = [
     "ScoreError",
     "ScoreTable",
     "build_jobs",
+    "check_experiment",
     "load_experiment",
     "parse_experiment",
     "read_rddlsim_log",

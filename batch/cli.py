@@ -10,7 +10,7 @@ from pathlib import Path
 import click
 
 from ..server.store import StoreError
-from .experiment import ExperimentError, load_experiment
+from .experiment import ExperimentError, check_experiment
 from .progress import format_duration
 from .results import BatchStore, RoundRecord
 from .scoring import RULES, ScoreError, ScoreTable, score
@@ -119,7 +119,7 @@ def run(
     if cluster is not None and server is not None:
         raise click.UsageError("--cluster and --server do not go together")
     try:
-        experiment = load_experiment(experiment_file)
+        experiment = check_experiment(experiment_file)  # every problem, instances too
         summary = run_batch(
             experiment,
             db,

@@ -20,8 +20,9 @@ A planner table may say ``optional = true``: a registered planner that cannot be
 (PROST without a binary) is then left out with a warning instead of stopping the file.
 
 ``noop`` and ``random`` always run: they are the baselines of the IPPC scores. Every
-problem of a file is reported at once, each with its line (`ExperimentError`), before
-anything runs; instances are checked by `batch.instances` the same way.
+problem of a file is reported at once, each with its line and column
+(`ExperimentError`), before anything runs; instances are checked by `batch.instances`
+the same way (`check_experiment` does both and reports every problem of both).
 """
 
 from __future__ import annotations
@@ -40,6 +41,7 @@ __all__ = [
     "Experiment",
     "ExperimentError",
     "PlannerSpec",
+    "check_experiment",
     "load_experiment",
     "parse_experiment",
 ]
@@ -59,11 +61,33 @@ _LABEL = re.compile(r"^[A-Za-z0-9_.\-]+$")
 
 class ExperimentError(ValueError):
     """An experiment file that cannot run; ``problems`` holds one line per problem,
-    each starting with ``file:line:``."""
+    each starting with ``file:line:column:``. ``partial`` is the experiment as far as
+    it could be read (bad values replaced by their defaults), so that its instances can
+    be checked too and every problem reported at once; None when the file is not
+    TOML."""
 
-    def __init__(self, problems: list[str]) -> None:
+    def __init__(self, problems: list[str], partial: Experiment | None = None) -> None:
         super().__init__("\n".join(problems))
         self.problems = problems
+        self.partial = partial
+
+
+Place = tuple[int, int]  # (line, column), 1-based
+
+
+def sort_problems(problems: list[str], where: str) -> list[str]:
+    """`problems` of one file in the order of their places (``where:line:col:``);
+    others (no place) first, in their order."""
+
+    def place(problem: str) -> tuple[int, int]:
+        m = (
+            re.match(r"(\d+):(\d+):", problem[len(where) + 1 :])
+            if problem.startswith(where)
+            else None
+        )
+        return (int(m.group(1)), int(m.group(2))) if m else (0, 0)
+
+    return sorted(problems, key=place)
 
 
 @dataclass(frozen=True)
@@ -93,8 +117,8 @@ class Experiment:
     jobs: int
     instances: tuple[str, ...]
     planners: tuple[PlannerSpec, ...]
-    # where each instance spec was written (for errors found later)
-    instance_lines: tuple[int, ...] = ()
+    # where each instance spec was written, (line, column), for errors found later
+    instance_lines: tuple[Place, ...] = ()
 
     @property
     def base_dir(self) -> Path:
@@ -109,40 +133,80 @@ class Experiment:
 
 
 class _Lines:
-    """Finds the line of a key in the TOML text (tomllib reports none after parsing)."""
+    """Finds where a key or a value is in the TOML text (tomllib reports no places
+    after parsing): (line, column), 1-based."""
 
     def __init__(self, text: str) -> None:
         self.lines = text.splitlines()
 
-    def table(self, dotted: str) -> int:
+    def table(self, dotted: str) -> Place:
         pattern = re.compile(
-            r"^\s*\[\s*" + r"\s*\.\s*".join(map(re.escape, dotted.split("."))) + r"\s*\]"
+            r"^\s*(\[)\s*" + r"\s*\.\s*".join(map(re.escape, dotted.split("."))) + r"\s*\]"
         )
         for i, line in enumerate(self.lines, 1):
-            if pattern.match(line):
-                return i
+            m = pattern.match(line)
+            if m:
+                return i, m.start(1) + 1
         return self.key(dotted.split(".")[-1])
 
-    def key(self, key: str, table: str | None = None) -> int:
-        """The first line assigning `key` (inside `[table]` when given), else 1."""
-        start = self.table(table) if table else 1
-        pattern = re.compile(r"^\s*" + re.escape(key) + r"\s*=")
-        inline = re.compile(r"[{,]\s*" + re.escape(key) + r"\s*=")
-        for i in range(start, len(self.lines) + 1):
+    def key(self, key: str, table: str | None = None) -> Place:
+        """Where `key` is first assigned (inside `[table]` when given), else the
+        table's header (or 1:1)."""
+        start = self.table(table) if table else (1, 1)
+        pattern = re.compile(r"^\s*(" + re.escape(key) + r")\s*=")
+        inline = re.compile(r"[{,]\s*(" + re.escape(key) + r")\s*=")
+        for i in range(start[0], len(self.lines) + 1):
             line = self.lines[i - 1]
-            if table and i > start and line.lstrip().startswith("["):
+            if table and i > start[0] and line.lstrip().startswith("["):
                 break
-            if pattern.match(line) or inline.search(line):
-                return i
+            m = pattern.match(line) or inline.search(line)
+            if m:
+                return i, m.start(1) + 1
         return start
 
-    def value(self, text: str, after: int = 1) -> int:
-        """The first line at or after `after` holding the string `text`."""
+    def value(self, text: str, after: Place = (1, 1)) -> Place:
+        """Where the string `text` is first written (its opening quote) at or after
+        `after`; `after` itself when it is not found."""
         quoted = [f'"{text}"', f"'{text}'"]
-        for i in range(after, len(self.lines) + 1):
-            if any(q in self.lines[i - 1] for q in quoted):
-                return i
+        line, col = after
+        for i in range(line, len(self.lines) + 1):
+            start = col - 1 if i == line else 0
+            found = [c for c in (self.lines[i - 1].find(q, start) for q in quoted) if c >= 0]
+            if found:
+                return i, min(found) + 1
         return after
+
+    def value_part(self, text: str, where: Place) -> Place:
+        """Where `text` stands on the line of `where` (a key), else `where`."""
+        col = self.lines[where[0] - 1].find(text) if where[0] <= len(self.lines) else -1
+        return (where[0], col + 1) if col >= 0 else where
+
+    def end(self) -> Place:
+        """Just after the last character of the text."""
+        if not self.lines:
+            return 1, 1
+        return len(self.lines), len(self.lines[-1]) + 1
+
+
+def check_experiment(path: str | Path) -> Experiment:
+    """`load_experiment`, and its instances resolved and checked: one `ExperimentError`
+    with every problem of the file and of its instances, in the order of the file."""
+    from .instances import resolve_instances
+
+    try:
+        experiment = load_experiment(path)
+    except ExperimentError as err:
+        if err.partial is None:
+            raise
+        problems = list(err.problems)
+        try:
+            resolve_instances(err.partial)
+        except ExperimentError as more:
+            problems += more.problems
+        where = str(err.partial.path) if err.partial.path is not None else "<experiment>"
+        raise ExperimentError(sort_problems(problems, where), err.partial) from None
+    resolve_instances(experiment)
+    return experiment
 
 
 def load_experiment(path: str | Path) -> Experiment:
@@ -159,19 +223,19 @@ def parse_experiment(text: str, path: Path | None = None) -> Experiment:
     """Check the TOML text of an experiment (``path`` names it in errors and anchors
     relative instance paths)."""
     where = str(path) if path is not None else "<experiment>"
+    lines = _Lines(text)
     try:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as err:
-        # tomllib's message ends with "(at line L, column C)"
+        # tomllib's message ends with "(at line L, column C)" or "(at end of document)"
         m = re.search(r"\(at line (\d+), column (\d+)\)", str(err))
-        loc = f"{m.group(1)}:{m.group(2)}" if m else "1"
-        msg = re.sub(r"\s*\(at line \d+, column \d+\)", "", str(err))
-        raise ExperimentError([f"{where}:{loc}: not valid TOML: {msg}"]) from None
-    lines = _Lines(text)
+        line, col = (int(m.group(1)), int(m.group(2))) if m else lines.end()
+        msg = re.sub(r"\s*\(at (line \d+, column \d+|end of document)\)", "", str(err))
+        raise ExperimentError([f"{where}:{line}:{col}: not valid TOML: {msg}"]) from None
     problems: list[str] = []
 
-    def bad(line: int, message: str) -> None:
-        problems.append(f"{where}:{line}: {message}")
+    def bad(place: Place, message: str) -> None:
+        problems.append(f"{where}:{place[0]}:{place[1]}: {message}")
 
     for key in sorted(set(data) - _TOP_KEYS):
         bad(lines.key(key), f"unknown key '{key}' (known: {', '.join(sorted(_TOP_KEYS))})")
@@ -205,10 +269,13 @@ def parse_experiment(text: str, path: Path | None = None) -> Experiment:
         name = "experiment"
 
     instances: list[str] = []
-    instance_lines: list[int] = []
+    instance_lines: list[Place] = []
     raw_instances = data.get("instances")
     if raw_instances is None:
-        bad(1, "no 'instances': list the instance files, folders, globs or rddlrepository names")
+        bad(
+            (1, 1),
+            "no 'instances': list the instance files, folders, globs or rddlrepository names",
+        )
     elif isinstance(raw_instances, str):
         raw_instances = [raw_instances]
     if isinstance(raw_instances, list):
@@ -221,15 +288,14 @@ def parse_experiment(text: str, path: Path | None = None) -> Experiment:
             after = lines.value(item, after)
             instances.append(item.strip())
             instance_lines.append(after)
+            after = (after[0], after[1] + 1)  # the next spec is further on
         if not raw_instances:
             bad(first, "'instances' is empty")
     elif raw_instances is not None:
         bad(lines.key("instances"), f"'instances' must be a list of strings, got {raw_instances!r}")
 
     planners = _planners(data.get("planners", {}), lines, bad)
-    if problems:
-        raise ExperimentError(problems)
-    return Experiment(
+    experiment = Experiment(
         name=name.strip(),
         path=path,
         rounds=rounds,
@@ -240,6 +306,9 @@ def parse_experiment(text: str, path: Path | None = None) -> Experiment:
         planners=tuple(planners),
         instance_lines=tuple(instance_lines),
     )
+    if problems:
+        raise ExperimentError(sort_problems(problems, where), experiment)
+    return experiment
 
 
 def _planners(raw: Any, lines: _Lines, bad: Any) -> list[PlannerSpec]:
@@ -311,7 +380,7 @@ def _planners(raw: Any, lines: _Lines, bad: Any) -> list[PlannerSpec]:
                     lines.key("options", f"planners.{label}"),
                     f"planners.{label}: 'options' are for registered planners; put a command's options in the command",
                 )
-            argv = _command(label, command, lines.key("command", f"planners.{label}"), bad)
+            argv = _command(label, command, lines, lines.key("command", f"planners.{label}"), bad)
             if argv is not None:
                 out.append(
                     PlannerSpec(label, None, {}, argv, None if timeout is None else float(timeout))
@@ -332,7 +401,10 @@ def _planners(raw: Any, lines: _Lines, bad: Any) -> list[PlannerSpec]:
                 # e.g. PROST when no binary is given: the experiment runs without it
                 log.warning("planners.%s left out (optional): %s", label, err)
                 continue
-            bad(lines.key("planner", f"planners.{label}"), f"planners.{label}: {err}")
+            # point at the option the planner refused, when it names one
+            named = re.search(r"option '([^']+)'", str(err))
+            key = named.group(1) if named and named.group(1) in raw_options else "planner"
+            bad(lines.key(key, f"planners.{label}"), f"planners.{label}: {err}")
             continue
         if issubclass(cls, ExternalPlanner) and "seed" in options:
             bad(lines.key("seed", f"planners.{label}"), f"planners.{label}: {name} takes no seed")
@@ -352,7 +424,9 @@ def _planners(raw: Any, lines: _Lines, bad: Any) -> list[PlannerSpec]:
     return out
 
 
-def _command(label: str, command: Any, line: int, bad: Any) -> tuple[str, ...] | None:
+def _command(
+    label: str, command: Any, lines: _Lines, line: Place, bad: Any
+) -> tuple[str, ...] | None:
     if isinstance(command, str):
         try:
             argv = shlex.split(command)
@@ -370,8 +444,9 @@ def _command(label: str, command: Any, line: int, bad: Any) -> tuple[str, ...] |
     for word in argv:
         for field_name in re.findall(r"\{([^{}]*)\}", word):
             if field_name not in COMMAND_PLACEHOLDERS:
+                at = lines.value_part("{" + field_name + "}", line)
                 bad(
-                    line,
+                    at,
                     f"planners.{label}: unknown placeholder {{{field_name}}} in 'command' "
                     f"(known: {', '.join('{' + p + '}' for p in COMMAND_PLACEHOLDERS)})",
                 )

@@ -12,7 +12,8 @@ Each spec of an experiment's ``instances`` list is one of:
   numbered instance files, paired by file as rddlrepository pairs them.
 
 Relative paths are read from the experiment file's folder. Every instance is parsed and
-checked here, before anything runs; each problem is reported with the line of its spec.
+checked here, before anything runs; each problem is reported with the line and column of
+its spec.
 """
 
 from __future__ import annotations
@@ -25,7 +26,7 @@ from pathlib import Path
 
 from ..rddl import CheckResult, check_files, check_pair
 from ..rddl.model import Model
-from .experiment import Experiment, ExperimentError
+from .experiment import Experiment, ExperimentError, sort_problems
 
 __all__ = ["ResolvedInstance", "domain_of", "resolve_instances"]
 
@@ -130,9 +131,9 @@ def resolve_instances(experiment: Experiment) -> list[ResolvedInstance]:
     problems: list[str] = []
     out: list[ResolvedInstance] = []
     where = str(experiment.path) if experiment.path is not None else "<experiment>"
-    lines = experiment.instance_lines or tuple(1 for _ in experiment.instances)
-    for spec, lineno in zip(experiment.instances, lines, strict=True):
-        line = f"{where}:{lineno}"
+    lines = experiment.instance_lines or tuple((1, 1) for _ in experiment.instances)
+    for spec, (lineno, col) in zip(experiment.instances, lines, strict=True):
+        line = f"{where}:{lineno}:{col}"
         path = Path(spec).expanduser()
         if not path.is_absolute():
             path = experiment.base_dir / path
@@ -176,7 +177,7 @@ def resolve_instances(experiment: Experiment) -> list[ResolvedInstance]:
                 )
             )
     if problems:
-        raise ExperimentError(problems)
+        raise ExperimentError(sort_problems(problems, where), experiment)
     seen: set[str] = set()
     unique: list[ResolvedInstance] = []
     for inst in out:

@@ -1,4 +1,5 @@
-"""Experiment files: what they say, and one clear error per problem, with its line."""
+"""Experiment files: what they say, and one clear error per problem, with its line and
+column."""
 
 from __future__ import annotations
 
@@ -9,6 +10,7 @@ import pytest
 from ippc.batch import (
     BatchStore,
     ExperimentError,
+    check_experiment,
     load_experiment,
     parse_experiment,
     resolve_instances,
@@ -63,7 +65,7 @@ def test_the_issue_example_reads_as_written(tmp_path: Path) -> None:
     ]
 
 
-def test_every_problem_is_reported_with_its_line() -> None:
+def test_every_problem_is_reported_with_its_place_in_file_order() -> None:
     text = (
         "rounds = 0\n"  # 1
         'instances = ["x"]\n'  # 2
@@ -80,32 +82,37 @@ def test_every_problem_is_reported_with_its_line() -> None:
         'planner = "noop"\n'  # 13
     )
     found = problems(text)
+    assert found[0] == "exp.toml:1:1: 'rounds' must be an integer >= 1, got 0"
     assert (
-        found[0]
-        == "exp.toml:3: unknown key 'colour' (known: instances, jobs, name, planners, rounds, seed, timeout)"
+        found[1]
+        == "exp.toml:3:1: unknown key 'colour' (known: instances, jobs, name, planners, rounds, seed, timeout)"
     )
-    joined = "\n".join(found)
-    assert "exp.toml:1: 'rounds' must be an integer >= 1, got 0" in joined
-    assert "exp.toml:5: planners.a: unknown planner 'no-such-planner'" in joined
-    assert "exp.toml:7: planners.b: planner 'mcts' has no option 'exploraton'" in joined
-    assert "exp.toml:10: planners.c: unknown placeholder {hots}" in joined
-    assert "exp.toml:11: planners.d: give exactly one of 'planner'" in joined
+    assert found[2].startswith("exp.toml:5:1: planners.a: unknown planner 'no-such-planner'")
+    # the option the planner refused, not its table
+    assert found[3].startswith(
+        "exp.toml:8:13: planners.b: planner 'mcts' has no option 'exploraton'"
+    )
+    assert found[4].startswith("exp.toml:10:31: planners.c: unknown placeholder {hots}")
+    assert found[5].startswith("exp.toml:11:1: planners.d: give exactly one of 'planner'")
     assert len(found) == 6
 
 
 def test_toml_syntax_error_names_line_and_column() -> None:
     (found,) = problems('rounds = 3\ninstances = ["a",\n[planners.x]\n')
     assert found == "exp.toml:3:2: not valid TOML: Invalid value"
+    # tomllib says "at end of document": the end of the last line
+    (found,) = problems('rounds = 3\ninstances = [\n  "a",\n')
+    assert found == "exp.toml:3:7: not valid TOML: Invalid value"
 
 
 def test_command_needs_the_port_and_options_belong_to_registered_planners() -> None:
     found = problems('instances = ["a"]\n[planners.c]\ncommand = "prog --host {host}"\n')
     assert found == [
-        "exp.toml:3: planners.c: 'command' must contain {port} (the port of the session's server)"
+        "exp.toml:3:1: planners.c: 'command' must contain {port} (the port of the session's server)"
     ]
     found = problems('instances = ["a"]\n[planners.random]\nplanner = "noop"\n')
     assert found == [
-        "exp.toml:2: planners.random: the label 'random' is kept for the random baseline"
+        "exp.toml:2:1: planners.random: the label 'random' is kept for the random baseline"
     ]
 
 
@@ -124,12 +131,31 @@ def test_instance_problems_name_the_spec_line(tmp_path: Path) -> None:
         resolve_instances(exp)
     where = str(tmp_path / "exp.toml")
     assert info.value.problems == [
-        f"{where}:2: instance spec 'missing/folder/': no such file or folder",
-        f"{where}:3: instance spec 'SysAdmin_MDP_ippc2011:11': SysAdmin_MDP_ippc2011 has no instance 11 "
+        f"{where}:2:3: instance spec 'missing/folder/': no such file or folder",
+        f"{where}:3:3: instance spec 'SysAdmin_MDP_ippc2011:11': SysAdmin_MDP_ippc2011 has no instance 11 "
         "(it has 1, 2, 3, 4, 5, 6, 7, 8, 9, 10)",
-        f"{where}:4: instance spec 'SysAdmin_MDP_ippc2011:3-1': instance numbers must look like 1, 1-5 or 1,3,7",
-        f"{where}:5: instance spec 'NoSuchProblem_ippc2011:1': no file, folder or rddlrepository problem of that name",
+        f"{where}:4:3: instance spec 'SysAdmin_MDP_ippc2011:3-1': instance numbers must look like 1, 1-5 or 1,3,7",
+        f"{where}:5:3: instance spec 'NoSuchProblem_ippc2011:1': no file, folder or rddlrepository problem of that name",
     ]
+
+
+def test_instance_problems_come_with_the_files_other_problems(tmp_path: Path) -> None:
+    # one run shows them all: the file's own problems and its instances', in file order
+    (tmp_path / "exp.toml").write_text(
+        'rounds = 0\ninstances = ["nowhere/", "SysAdmin_MDP_ippc2011:99"]\n'
+        '[planners.m]\nplanner = "mcts"\noptions = { iterations = "many" }\n'
+    )
+    with pytest.raises(ExperimentError) as info:
+        check_experiment(tmp_path / "exp.toml")
+    where = str(tmp_path / "exp.toml")
+    assert [p.split(" ", 1)[0] for p in info.value.problems] == [
+        f"{where}:1:1:",
+        f"{where}:2:14:",
+        f"{where}:2:26:",
+        f"{where}:5:13:",
+    ]
+    assert "'nowhere/': no such file or folder" in info.value.problems[1]
+    assert "has no instance 99" in info.value.problems[2]
 
 
 def test_examples_check_and_resolve() -> None:
@@ -175,3 +201,27 @@ def test_a_version_2_database_is_migrated_in_place(tmp_path: Path) -> None:
         assert store.jobs() == []
     with server_store.ResultStore(db) as rs:  # the server reads it as before
         assert rs.sessions()[0]["client_name"] == "c"
+
+
+def test_the_bad_file_of_the_docs_gets_the_lines_the_docs_show(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import re
+
+    from click.testing import CliRunner
+    from ippc.batch.cli import main
+
+    page = (REPO / "docs" / "batch.md").read_text()
+    toml = re.search(r"^```toml exp.toml\n(.*?)^```$", page, re.S | re.M)
+    shown = re.search(r"^```text rddl-batch run exp.toml\n(.*?)^```$", page, re.S | re.M)
+    assert toml is not None and shown is not None
+    (tmp_path / "exp.toml").write_text(toml.group(1))
+    monkeypatch.chdir(tmp_path)
+    result = CliRunner().invoke(main, ["run", "exp.toml"])
+    assert result.exit_code == 2
+    got = result.output.splitlines()
+    expected = shown.group(1).splitlines()
+    assert len(got) == len(expected), result.output
+    for line, pattern in zip(got, expected, strict=True):
+        # "(...)" on the page stands for a list in brackets
+        assert re.fullmatch(re.escape(pattern).replace(r"\(\.\.\.\)", r"\(.*\)"), line), line
