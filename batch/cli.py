@@ -119,10 +119,11 @@ def run(
     if cluster is not None and server is not None:
         raise click.UsageError("--cluster and --server do not go together")
     try:
-        experiment = check_experiment(experiment_file)  # every problem, instances too
+        experiment, instances = check_experiment(experiment_file)  # every problem at once
         summary = run_batch(
             experiment,
             db,
+            instances=instances,
             jobs=jobs,
             cluster=cluster,
             server=_host_port(server, "--server"),

@@ -33,7 +33,10 @@ import shlex
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from .instances import ResolvedInstance
 
 __all__ = [
     "BASELINES",
@@ -188,7 +191,7 @@ class _Lines:
         return len(self.lines), len(self.lines[-1]) + 1
 
 
-def check_experiment(path: str | Path) -> Experiment:
+def check_experiment(path: str | Path) -> tuple[Experiment, list[ResolvedInstance]]:
     """`load_experiment`, and its instances resolved and checked: one `ExperimentError`
     with every problem of the file and of its instances, in the order of the file."""
     from .instances import resolve_instances
@@ -205,8 +208,7 @@ def check_experiment(path: str | Path) -> Experiment:
             problems += more.problems
         where = str(err.partial.path) if err.partial.path is not None else "<experiment>"
         raise ExperimentError(sort_problems(problems, where), err.partial) from None
-    resolve_instances(experiment)
-    return experiment
+    return experiment, resolve_instances(experiment)
 
 
 def load_experiment(path: str | Path) -> Experiment:

@@ -31,7 +31,7 @@ from pathlib import Path
 from typing import Any
 
 from .experiment import Experiment, ExperimentError
-from .instances import resolve_instances
+from .instances import ResolvedInstance, resolve_instances
 from .jobs import Job, JobResult, build_jobs, run_job
 from .progress import Progress
 from .results import DONE, BatchStore
@@ -153,15 +153,18 @@ def run_batch(
     retry_failed: bool = False,
     log_dir: str | Path | None = None,
     progress: Progress | None = None,
+    instances: list[ResolvedInstance] | None = None,
 ) -> BatchSummary:
     """Play every job of `experiment` not yet done, storing results in `db`.
 
     ``jobs`` sessions at once on this machine (default: the experiment's ``jobs``),
     or on ``cluster`` (a scheduler address or a ``distributed.Client``). ``server``
     plays against an existing server instead of one per job. Raises `ExperimentError`
-    for instances that do not resolve, before anything runs."""
+    for instances that do not resolve, before anything runs (``instances``: already
+    resolved by `check_experiment`)."""
     t0 = time.monotonic()
-    instances = resolve_instances(experiment)
+    if instances is None:
+        instances = resolve_instances(experiment)
     if server is not None:
         commands = [p.label for p in experiment.planners if p.command is not None]
         if commands:

@@ -147,6 +147,9 @@ def test_instance_problems_come_with_the_files_other_problems(tmp_path: Path) ->
     )
     with pytest.raises(ExperimentError) as info:
         check_experiment(tmp_path / "exp.toml")
+    (tmp_path / "exp.toml").write_text('rounds = 1\ninstances = ["SysAdmin_MDP_ippc2011:2"]\n')
+    exp, instances = check_experiment(tmp_path / "exp.toml")
+    assert exp.rounds == 1 and [i.name for i in instances] == ["sysadmin_inst_mdp__2"]
     where = str(tmp_path / "exp.toml")
     assert [p.split(" ", 1)[0] for p in info.value.problems] == [
         f"{where}:1:1:",
