@@ -259,6 +259,10 @@ class Expression:
             return self._fn(env)
         except (KeyError, IndexError) as err:
             raise EvaluationError(f"{self.text!r}: no {err} in the message") from None
+        except RecursionError:
+            # a message nested deeper than the interpreter's stack (a self-referencing
+            # object, or a value thousands of levels deep)
+            raise EvaluationError(f"{self.text!r}: the message is nested too deeply") from None
         except (TypeError, AttributeError, ValueError, ArithmeticError) as err:
             raise EvaluationError(f"{self.text!r}: {err}") from None
 
@@ -273,10 +277,14 @@ def compile_expression(text: str, names: Collection[str] = ("msg",)) -> Expressi
         raise ExpressionError(text, 1, 1, "an expression is one line")
     try:
         tree = ast.parse(text.strip(), mode="eval")
+        compiler = _Compiler(text.strip(), names)
+        fn = compiler.compile(tree.body)
     except SyntaxError as err:
         raise ExpressionError(
             text, err.lineno or 1, err.offset or 1, f"syntax error: {err.msg}"
         ) from None
-    compiler = _Compiler(text.strip(), names)
-    fn = compiler.compile(tree.body)
+    except (RecursionError, MemoryError):
+        # Python's parser (or the compiler here) gives up on thousands of nested
+        # operators: refused like any other expression it cannot take
+        raise ExpressionError(text, 1, 1, "the expression is nested too deeply") from None
     return Expression(text.strip(), frozenset(compiler.used), fn)

@@ -68,3 +68,20 @@ def test_evaluation_errors_name_the_expression() -> None:
         compile_expression("msg.s * 1000000000").evaluate({"msg": {"s": "a"}})
     with pytest.raises(EvaluationError, match="% applies to numbers only"):
         compile_expression("msg.s % 1").evaluate({"msg": {"s": "%s"}})
+
+
+@pytest.mark.parametrize("text", ["msg" + ".a" * 5000, "not " * 5000 + "msg", "-" * 5000 + "1"])
+def test_an_expression_nested_too_deeply_is_refused_not_a_crash(text: str) -> None:
+    # Python's parser gives up with RecursionError on these: a refusal like the others
+    with pytest.raises(ExpressionError) as info:
+        compile_expression(text)
+    assert info.value.reason == "the expression is nested too deeply"
+
+
+def test_a_message_that_recurses_fails_its_evaluation_only() -> None:
+    class Endless:
+        def __getattr__(self, name: str) -> object:
+            return getattr(self, name)  # an object whose attributes never end
+
+    with pytest.raises(EvaluationError, match="nested too deeply"):
+        compile_expression("msg.x").evaluate({"msg": Endless()})
