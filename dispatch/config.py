@@ -348,5 +348,6 @@ class _Loader:
             if node.plain_text and node.line > 0 and err.line == 1:
                 # a plain scalar: the expression's column is a column of the file
                 where = f"{node.source}:{node.line}:{node.column + err.column - 1}"
-            self.problems.append(f"{where}: {fluent}: {what} {err.reason}: {err.text!r}")
+            text = err.text if len(err.text) <= 120 else err.text[:100] + " ..."
+            self.problems.append(f"{where}: {fluent}: {what} {err.reason}: {text!r}")
             return None

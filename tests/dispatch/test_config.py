@@ -70,6 +70,11 @@ def test_a_good_config_loads(tmp_path: Path, kb: KnowledgeBase) -> None:
             ["5:5: delivered: unknown key 'topicz'"],
         ),
         ("rate: -1\nsensors: {}\n", ["1:7: rate must be a positive number"]),
+        (
+            # nested too deeply for Python's parser: refused, quoted short
+            "sensors:\n  delivered:\n    stream: s\n    value: " + "not " * 3000 + "msg.v\n",
+            ["4:12: delivered: value the expression is nested too deeply: 'not not "],
+        ),
         ("rates: 1\n", ["1:1: unknown key 'rates'", "1:1: no 'sensors' mapping"]),
         ("sensors: [1, 2\n", ["not valid YAML"]),
         ("", ["the sensing config is empty"]),
@@ -93,6 +98,7 @@ def test_bad_configs_name_file_line_and_reason(
     for got, want in zip(found, problems, strict=True):
         assert got.startswith(str(path)), got
         assert want in got, got
+        assert len(got) < len(str(path)) + 300, got  # an expression is quoted, not copied whole
 
 
 def test_a_missing_file_is_a_config_error(tmp_path: Path, kb: KnowledgeBase) -> None:
