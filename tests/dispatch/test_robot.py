@@ -61,16 +61,20 @@ def run_robot(db: Path, *, lie_once: bool = False, hang_once: bool = False):  # 
     robot.start_soon(camera)
     robot.start_soon(broken_sensor)
     config = server_config(rounds=2, db=db)
-    report = trio.run(
-        lambda: dispatch_session(
-            dispatcher,
-            PlannerSpec("exact"),
-            config,
-            sensing_task=True,
-            robot=robot,
-            planner_timeout=60.0,
-        )
-    )
+
+    async def bounded():  # type: ignore[no-untyped-def]
+        # a run takes about a second; a broken action timeout must fail the test, not hang it
+        with trio.fail_after(60):
+            return await dispatch_session(
+                dispatcher,
+                PlannerSpec("exact"),
+                config,
+                sensing_task=True,
+                robot=robot,
+                planner_timeout=60.0,
+            )
+
+    report = trio.run(bounded)
     return report, kb
 
 
