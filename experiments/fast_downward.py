@@ -32,7 +32,7 @@ hundredths.
 
 from __future__ import annotations
 
-import importlib.resources
+import importlib.util
 import logging
 import re
 import subprocess
@@ -65,14 +65,15 @@ _COPY_SUFFIX = re.compile(r"(__[oc][0-9_]+)+$")
 
 def driver_path() -> Path:
     """Fast Downward's driver script as the `up-fast-downward` package ships it."""
-    try:
-        files = importlib.resources.files("up_fast_downward")
-    except ModuleNotFoundError:
+    # found without importing it: the package's __init__ imports unified_planning, which
+    # the driver script does not need and which is not installed with it
+    spec = importlib.util.find_spec("up_fast_downward")
+    if spec is None or not spec.submodule_search_locations:
         raise PlannerError(
             "Fast Downward is not installed: pip install 'ippc[fast-downward]' "
             "(the PyPI package up-fast-downward), or give the driver with binary=PATH"
-        ) from None
-    path = Path(str(files)) / "downward" / "fast-downward.py"
+        )
+    path = Path(spec.submodule_search_locations[0]) / "downward" / "fast-downward.py"
     if not path.is_file():
         raise PlannerError(f"up-fast-downward is installed but has no driver at {path}")
     return path
