@@ -5,11 +5,11 @@ and never send an illegal action (the server would end the round there).
 random is rddlsim's RandomConcurrentPolicy: where that policy gives up it
 ends the session with rddlsim's message, as the Java client does. It adds
 one grounding at a time and keeps it only if the list so far is legal, so
-it can never find ChromaticDice's first action (all five dice at once) nor
-any action of WildlifePreserve (every ranger defends exactly one area:
-one ranger alone leaves the others' sums at 0); where noop is illegal and
-the coin flips skip every grounding (EarthObservation's exactly-one slew,
-PushYourLuck's roll or cash out) it gives up by chance, on some turns.
+it can never find ChromaticDice's first action (all five dice at once);
+where noop is illegal and the coin flips skip every grounding
+(EarthObservation's exactly-one slew, PushYourLuck's roll or cash out,
+WildlifePreserve #1's one ranger defending exactly one area) it gives up by
+chance, on some turns.
 """
 
 from __future__ import annotations
@@ -37,8 +37,12 @@ PLANNERS = {
 }
 
 # where rddlsim's RandomConcurrentPolicy gives up at once, and where it may
-RANDOM_STUCK_AT_ONCE = {("IPPC2018", "ChromaticDice"), ("IPPC2018", "WildlifePreserve")}
-RANDOM_MAY_STICK = {("IPPC2018", "EarthObservation"), ("IPPC2018", "PushYourLuck")}
+RANDOM_STUCK_AT_ONCE = {("IPPC2018", "ChromaticDice")}
+RANDOM_MAY_STICK = {
+    ("IPPC2018", "EarthObservation"),
+    ("IPPC2018", "PushYourLuck"),
+    ("IPPC2018", "WildlifePreserve"),
+}
 
 
 def play(files: tuple[Path, Path], instance: str, planner: str) -> SessionResult | Exception:
