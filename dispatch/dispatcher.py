@@ -359,7 +359,9 @@ class DispatchEpisode(Episode):
         }
         if legal:
             results.update(await self._dispatch(legal, started))
-        elif not wanted and Handlers.NOOP in d.handlers:
+        elif Handlers.NOOP in d.handlers:
+            # nothing runs this turn (no action, or every one refused): time passes
+            # for the robot as on a noop turn (the simulated world steps)
             await self._dispatch([GroundAction(Handlers.NOOP)], started, noop=True)
         succeeded = [a for a in legal if results[a].succeeded]
         for a in legal:

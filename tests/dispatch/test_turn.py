@@ -109,3 +109,16 @@ async def test_actions_fine_alone_but_not_together_are_all_refused() -> None:
     ]
     assert ran == []
     assert kb.get("robot-at", ("r1", "hall")) is True  # nothing applied
+
+
+async def test_a_turn_whose_actions_are_all_refused_is_a_noop_turn_in_the_world() -> None:
+    from ippc.dispatch.run import build_simulation
+
+    kb = KnowledgeBase.from_files(DOMAIN, TWO)
+    world, dispatcher = build_simulation(kb, 1, durations={"noop": 2.0})
+    start = dispatcher.clock.now()
+    record = await play_turn(dispatcher, Fluent("drop", ("r2",)))  # r2 holds nothing
+    assert outcomes(record) == [("drop(r2)", "precondition-false")]
+    # the world's step passed as on a noop turn (its exogenous fluents moved on)
+    assert world.steps == 1
+    assert dispatcher.clock.now() - start == pytest.approx(2.0 + 0.1)  # noop, then settling
