@@ -240,7 +240,11 @@ def write_report(
     dom = {(d, p): (m, c) for d, p, m, c, _ in table.per_domain()}
     for d in table.domains():
         cells = [
-            f"{dom[(d, p)][0]:.3f} ± {_fmt(dom[(d, p)][1], 2)}" if (d, p) in dom else "-"
+            "-"
+            if (d, p) not in dom
+            # one instance in the domain: no interval ("0.500", not "0.500 ± -")
+            else f"{dom[(d, p)][0]:.3f}"
+            + ("" if dom[(d, p)][1] is None else f" ± {dom[(d, p)][1]:.2f}")
             for p in planners
         ]
         md.append(f"| {d} | " + " | ".join(cells) + " |")
