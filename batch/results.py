@@ -11,8 +11,7 @@ from __future__ import annotations
 
 import sqlite3
 import time
-from collections.abc import Iterable, Iterator
-from contextlib import contextmanager
+from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -87,41 +86,17 @@ class RoundRecord:
     session: int = 0  # rounds of one session share this (order within it is the list order)
 
 
-class BatchStore:
-    """Jobs and results in one SQLite file (migrated to schema 3 when opened)."""
+class BatchStore(ResultStore):
+    """Jobs and results in one SQLite file (migrated to schema 3 when opened): the
+    server's `ResultStore` (its connection, its transactions, its readers) with the
+    jobs table's writers and the batch's readers."""
 
     def __init__(self, path: str | Path, *, busy_timeout_ms: int = 30000) -> None:
-        self.path = str(path)
-        ResultStore(self.path, busy_timeout_ms=busy_timeout_ms).close()  # schema + migration
-        self._conn = sqlite3.connect(
-            self.path, timeout=busy_timeout_ms / 1000.0, isolation_level=None
-        )
-        self._conn.execute(f"PRAGMA busy_timeout = {int(busy_timeout_ms)}")
-        self._conn.execute("PRAGMA foreign_keys = ON")
-        self._conn.row_factory = sqlite3.Row
-
-    def close(self) -> None:
-        self._conn.close()
+        super().__init__(path, busy_timeout_ms=busy_timeout_ms, owner="rddl-batch")
+        self._conn.row_factory = sqlite3.Row  # rows by column name (the readers below)
 
     def __enter__(self) -> BatchStore:
         return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
-
-    @contextmanager
-    def _tx(self) -> Iterator[sqlite3.Cursor]:
-        cur = self._conn.cursor()
-        cur.execute("BEGIN IMMEDIATE")
-        try:
-            yield cur
-            cur.execute("COMMIT")
-        except BaseException:
-            if self._conn.in_transaction:
-                self._conn.execute("ROLLBACK")
-            raise
-        finally:
-            cur.close()
 
     # ----------------------------------------------------------------- jobs
 
@@ -172,7 +147,7 @@ class BatchStore:
         sql = (
             "SELECT * FROM jobs" + (" WHERE experiment = ?" if experiment else "") + " ORDER BY id"
         )
-        rows = self._conn.execute(sql, (experiment,) if experiment else ()).fetchall()
+        rows = self.raw(sql, (experiment,) if experiment else ())
         return [
             JobRow(
                 r["id"],
@@ -192,9 +167,7 @@ class BatchStore:
         ]
 
     def experiments(self) -> list[str]:
-        return [
-            r[0] for r in self._conn.execute("SELECT DISTINCT experiment FROM jobs ORDER BY id")
-        ]
+        return [r[0] for r in self.raw("SELECT DISTINCT experiment FROM jobs ORDER BY id")]
 
     def mark(
         self, experiment: str, keys: Iterable[str], status: str, reason: str | None = None
@@ -272,7 +245,7 @@ class BatchStore:
             + " ORDER BY j.id, r.id"
         )
         out = []
-        for r in self._conn.execute(sql, (experiment,) if experiment else ()):
+        for r in self.raw(sql, (experiment,) if experiment else ()):
             spent = None
             if r["started_at"] is not None and r["ended_at"] is not None:
                 spent = (r["ended_at"] - r["started_at"]) * 1000.0
@@ -299,9 +272,7 @@ class BatchStore:
             + (" WHERE experiment = ?" if experiment else "")
             + " ORDER BY id"
         )
-        return [
-            (r[0], r[1], r[2]) for r in self._conn.execute(sql, (experiment,) if experiment else ())
-        ]
+        return [(r[0], r[1], r[2]) for r in self.raw(sql, (experiment,) if experiment else ())]
 
     def turn_times(self, experiment: str | None = None) -> list[tuple[str, str, str, float]]:
         """(planner, instance, domain, seconds the planner took) for every step."""
@@ -312,10 +283,10 @@ class BatchStore:
             + " ORDER BY j.id, r.id, st.turn_num"
         )
         return [
-            (a, b, c, float(d))
-            for a, b, c, d in self._conn.execute(sql, (experiment,) if experiment else ())
+            (a, b, c, float(d)) for a, b, c, d in self.raw(sql, (experiment,) if experiment else ())
         ]
 
     def raw(self, sql: str, params: tuple[Any, ...] = ()) -> list[sqlite3.Row]:
         """Rows of a read-only query (reports and tests)."""
-        return self._conn.execute(sql, params).fetchall()
+        with self._lock:
+            return self._conn.execute(sql, params).fetchall()

@@ -26,6 +26,19 @@ async def play_turn(dispatcher: Dispatcher, *actions: Fluent) -> dict[str, objec
     return outcome.record  # type: ignore[no-any-return]
 
 
+def recording(kb: KnowledgeBase) -> tuple[Dispatcher, list[str]]:
+    """A dispatcher whose one handler takes every action, succeeds, and notes it."""
+    handlers = Handlers(timeout=5.0)
+    ran: list[str] = []
+
+    async def any_action(d: Dispatch) -> Status:
+        ran.append(str(d.action))
+        return Status.SUCCEEDED
+
+    handlers.register("*", any_action)
+    return Dispatcher(kb, handlers, settle_limit=0.0), ran
+
+
 def outcomes(record: dict[str, object]) -> list[tuple[str, str]]:
     return [(a["action"], a["outcome"]) for a in record["actions"]]  # type: ignore[attr-defined, index]
 
@@ -63,15 +76,7 @@ async def test_the_actions_of_a_turn_run_at_once() -> None:
 
 async def test_one_action_that_fails_its_precondition_leaves_the_others_dispatched() -> None:
     kb = KnowledgeBase.from_files(DOMAIN, TWO)
-    handlers = Handlers(timeout=5.0)
-    ran: list[str] = []
-
-    async def any_action(d: Dispatch) -> Status:
-        ran.append(str(d.action))
-        return Status.SUCCEEDED
-
-    handlers.register("*", any_action)
-    dispatcher = Dispatcher(kb, handlers, settle_limit=0.0)
+    dispatcher, ran = recording(kb)
     # r2 holds nothing: its drop is refused on its own; r1's move goes ahead
     record = await play_turn(
         dispatcher, Fluent("move", ("r1", "hall", "office")), Fluent("drop", ("r2",))
@@ -87,15 +92,7 @@ async def test_one_action_that_fails_its_precondition_leaves_the_others_dispatch
 
 async def test_actions_fine_alone_but_not_together_are_all_refused() -> None:
     kb = KnowledgeBase.from_files(DOMAIN, TWO)
-    handlers = Handlers(timeout=5.0)
-    ran: list[str] = []
-
-    async def any_action(d: Dispatch) -> Status:
-        ran.append(str(d.action))
-        return Status.SUCCEEDED
-
-    handlers.register("*", any_action)
-    dispatcher = Dispatcher(kb, handlers, settle_limit=0.0)
+    dispatcher, ran = recording(kb)
     # one robot, two moves in one turn: each is legal, the pair breaks the
     # domain's one-action-per-robot constraint
     record = await play_turn(
