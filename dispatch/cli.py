@@ -20,6 +20,7 @@ from ..server.store import ResultStore, StoreError
 from .config import SensingConfig, SensingConfigError
 from .run import (
     DEFAULT_ROUNDS,
+    ListenError,
     PlannerSpec,
     RobotFileError,
     RunReport,
@@ -70,7 +71,12 @@ def print_report(report: RunReport) -> None:
     show_default=True,
     help="Address to listen on (and of the knowledge base's socket).",
 )
-@click.option("--port", default=2323, show_default=True, help="TCP port; 0 picks a free one.")
+@click.option(
+    "--port",
+    default=2323,
+    show_default=True,
+    help="TCP port for the planner; 0 picks a free one (--simulate always picks one).",
+)
 @click.option(
     "--planner",
     default=None,
@@ -306,10 +312,8 @@ def _robot(
         leaf = exc
         while isinstance(leaf, BaseExceptionGroup) and len(leaf.exceptions) == 1:
             leaf = leaf.exceptions[0]
-        if isinstance(leaf, OSError):
-            raise click.ClickException(
-                f"cannot listen on {opts['host']}:{opts['port']}: {leaf}"
-            ) from None
+        if isinstance(leaf, ListenError):
+            raise click.ClickException(str(leaf)) from None
         if isinstance(leaf, KeyboardInterrupt):
             raise click.Abort() from None
         raise

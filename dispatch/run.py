@@ -262,7 +262,12 @@ async def dispatch_session(
                 dispatcher.sensing,
                 [p.name for p in dispatcher.sim.action_fluents],
             )
-            bound = await nursery.start(socket.serve, config.host, kb_port)
+            try:
+                bound = await nursery.start(socket.serve, config.host, kb_port)
+            except OSError as err:
+                raise ListenError(
+                    "the knowledge base's socket, --kb-port", f"{config.host}:{kb_port}", err
+                ) from None
             if on_kb_listening is not None:
                 on_kb_listening(bound)
 
@@ -270,7 +275,12 @@ async def dispatch_session(
             services.append(await serve_dispatcher(dispatcher, config, task_status=task_status))
             nursery.cancel_scope.cancel()  # the one session is over
 
-        port = await nursery.start(server)
+        try:
+            port = await nursery.start(server)
+        except OSError as err:
+            raise ListenError(
+                "the planner's socket, --port", f"{config.host}:{config.port}", err
+            ) from None
         if on_listening is not None:
             on_listening(port)
         if spec is None:
@@ -359,6 +369,19 @@ class Robot:
     def start_soon(self, fn: Callable[..., Awaitable[Any]], *args: Any) -> None:
         """Run `fn(*args)` while the dispatcher runs (a sensor source)."""
         self.tasks.append((fn, args))
+
+
+class ListenError(OSError):
+    """A socket of the dispatcher that cannot listen; `what` says which
+    (the planner's, the knowledge base's), `where` the address asked for."""
+
+    def __init__(self, what: str, where: str, err: OSError):
+        super().__init__(err.errno, err.strerror or str(err))
+        self.what = what
+        self.where = where
+
+    def __str__(self) -> str:
+        return f"cannot listen on {self.where} ({self.what}): {self.strerror}"
 
 
 class RobotFileError(ValueError):

@@ -261,3 +261,22 @@ def test_real_prost_reaches_the_goal() -> None:
     )
     assert report.planner_error is None, report.planner_error
     assert report.goal_reached and plan(report.executed)[-1] == ("drop(r1)", "succeeded")
+
+
+@pytest.mark.parametrize("which", ["--port", "--kb-port"])
+def test_a_port_in_use_names_the_socket(tmp_path: Path, which: str) -> None:
+    import socket
+
+    config = tmp_path / "sensing.yaml"
+    config.write_text("sensors:\n  present:\n    stream: cam\n    value: msg.seen\n")
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        args = [str(DOMAIN), str(ONE), "--sensing", str(config), "--planner", "exact", "-q"]
+        args += ["--port", "0", "--kb-port", "0"]
+        args[args.index(which) + 1] = str(port)
+        result = CliRunner().invoke(main, args)
+    what = "the planner's socket" if which == "--port" else "the knowledge base's socket"
+    assert result.exit_code == 1
+    assert f"Error: cannot listen on 127.0.0.1:{port} ({what}, {which}): " in result.output
