@@ -113,7 +113,7 @@ def run(
     verbose: bool,
 ) -> None:
     """Play every planner on every instance of EXPERIMENT_FILE; again, to resume."""
-    from .runner import run_batch
+    from .runner import ClusterError, run_batch
 
     _setup_logging(verbose)
     if cluster is not None and server is not None:
@@ -136,6 +136,8 @@ def run(
         raise SystemExit(2) from None
     except StoreError as err:
         raise click.ClickException(f"--db {db}: {err}") from None
+    except ClusterError as err:
+        raise click.ClickException(f"--cluster: {err}") from None
     done = summary.skipped + summary.finished
     failed = f"{summary.failed} failed"
     if summary.failed_before:

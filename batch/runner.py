@@ -36,9 +36,17 @@ from .jobs import Job, JobResult, build_jobs, run_job
 from .progress import Progress
 from .results import DONE, BatchStore
 
-__all__ = ["BatchSummary", "run_batch"]
+__all__ = ["BatchSummary", "ClusterError", "run_batch"]
 
 log = logging.getLogger(__name__)
+
+
+#: Seconds to wait for a Dask scheduler given by address before giving up.
+SCHEDULER_TIMEOUT = 30.0
+
+
+class ClusterError(RuntimeError):
+    """The Dask scheduler given with ``cluster`` cannot be reached."""
 
 
 @dataclass(frozen=True)
@@ -117,7 +125,10 @@ def _dask(jobs: list[Job], cluster: Any, started: Callable[[Job], None]) -> Iter
             ["--cluster needs Dask's distributed package: pip install 'ippc[batch]'"]
         ) from None
     own = isinstance(cluster, str)
-    client = distributed.Client(cluster, timeout="30s") if own else cluster
+    try:
+        client = distributed.Client(cluster, timeout=f"{SCHEDULER_TIMEOUT:g}s") if own else cluster
+    except (OSError, TimeoutError) as err:
+        raise ClusterError(f"cannot reach the Dask scheduler at {cluster}: {err}") from None
     futures = []
     try:
         by_key = {}

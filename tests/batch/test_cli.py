@@ -132,3 +132,25 @@ def test_a_failed_session_is_recorded_the_batch_goes_on_and_reruns_say_so(
     assert out.startswith("fail: 2/3 sessions done (0 now, 2 before), 1 failed, ")
     with BatchStore(db) as store:
         assert {j.planner: j.attempts for j in store.jobs()} == {"noop": 1, "random": 1, "crash": 2}
+
+
+def test_a_scheduler_that_does_not_answer_is_one_line(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import socket
+
+    from ippc.batch import runner
+
+    pytest.importorskip("distributed")
+    monkeypatch.setattr(runner, "SCHEDULER_TIMEOUT", 1.0)
+    with socket.socket() as s:  # a free port on loopback, closed again: nobody listens
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    db = tmp_path / "c.sqlite"
+    code, out = invoke("run", str(SMALL), "--db", str(db), "--cluster", f"tcp://127.0.0.1:{port}")
+    assert code == 1
+    assert out.startswith(
+        f"Error: --cluster: cannot reach the Dask scheduler at tcp://127.0.0.1:{port}: "
+    )
+    with BatchStore(db) as store:
+        assert {j.status for j in store.jobs()} == {"pending"}  # nothing was marked running
