@@ -149,7 +149,7 @@ def run_job(job: Job) -> JobResult:
         raise
     except Exception as err:  # a bug or a broken instance must not stop the batch
         log.debug("job %s failed", job.key, exc_info=True)
-        return JobResult(job.key, "failed", f"{type(err).__name__}: {err}", started, time.time())
+        return JobResult(job.key, "failed", _leaf_text(err), started, time.time())
 
 
 def _run_own_server(job: Job, started: float) -> JobResult:
@@ -231,7 +231,18 @@ async def _play_client(job: Job, host: str, port: int) -> str | None:
         return f"the session was still running {hard:g} s after it started; stopped"
     except (ClientError, PlannerError) as err:
         return str(err)
+    except Exception as err:  # a bug in the planner: this session fails, with its words
+        log.debug("planner %s raised", spec.label, exc_info=True)
+        return f"the planner raised {_leaf_text(err)}"
     return None
+
+
+def _leaf_text(err: BaseException) -> str:
+    """``Type: message`` of an error, looking inside exception groups of one error
+    (trio's nurseries wrap what their tasks raise)."""
+    while isinstance(err, BaseExceptionGroup) and len(err.exceptions) == 1:
+        err = err.exceptions[0]
+    return f"{type(err).__name__}: {err}"
 
 
 def _log_path(job: Job) -> Path | None:

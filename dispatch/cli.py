@@ -232,6 +232,11 @@ def main(
     print_report(report)
     if json_out is not None:
         json_out.write_text(json.dumps(report.as_dict(), indent=2) + "\n")
+    if report.session_status in (None, "dropped"):
+        # the report is printed either way; the status says the session did not play out
+        why = "no session was played" if report.session_status is None else "the session dropped"
+        click.echo(f"rddl-dispatch: {why}", err=True)
+        raise SystemExit(1)
 
 
 def _check_planner(spec: PlannerSpec) -> None:

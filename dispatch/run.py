@@ -298,6 +298,11 @@ async def dispatch_session(
                 )
             except PlannerError as err:
                 error[0] = str(err)
+            except Exception as err:  # noqa: BLE001 - a planner's bug ends its session only
+                while isinstance(err, ExceptionGroup) and len(err.exceptions) == 1:
+                    err = err.exceptions[0]  # the planner's own error, not trio's wrapping
+                log.error("planner %s raised", spec.label, exc_info=True)
+                error[0] = f"the planner raised {type(err).__name__}: {err}"
             if not services:
                 # the planner is done and no session is over: do not wait
                 # for a connection that will not come (grace for the session's end)

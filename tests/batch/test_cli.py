@@ -154,3 +154,33 @@ def test_a_scheduler_that_does_not_answer_is_one_line(
     )
     with BatchStore(db) as store:
         assert {j.status for j in store.jobs()} == {"pending"}  # nothing was marked running
+
+
+def test_a_planner_that_raises_fails_its_job_with_the_planners_words(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    from ippc.batch.jobs import run_job
+    from ippc.planners import base
+    from ippc.planners.base import Planner
+
+    class Broken(Planner):
+        name = "broken"
+
+        def act(self, obs):  # type: ignore[no-untyped-def]
+            raise RuntimeError("planner bug")
+
+    find, make = base.find_planner, base.make_planner
+    monkeypatch.setattr(base, "find_planner", lambda n: Broken if n == "broken" else find(n))
+    monkeypatch.setattr(
+        base, "make_planner", lambda n, o: Broken() if n == "broken" else make(n, o)
+    )
+    files = tuple(str(p) for p in sorted((REPO / "domains" / "print_jobs").glob("*.rddl")))
+    job = Job(
+        "e", PlannerSpec("broken", "broken"), "print_jobs_inst_1", "d", files, False, 1, 30.0, 1, 2
+    )
+    result = run_job(job)
+    assert result.status == "failed"
+    # was "ExceptionGroup: Exceptions from Trio nursery (1 sub-exception)"
+    assert result.reason == (
+        "the client closed the connection; the client: the planner raised RuntimeError: planner bug"
+    )

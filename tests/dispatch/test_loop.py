@@ -280,3 +280,31 @@ def test_a_port_in_use_names_the_socket(tmp_path: Path, which: str) -> None:
     what = "the planner's socket" if which == "--port" else "the knowledge base's socket"
     assert result.exit_code == 1
     assert f"Error: cannot listen on 127.0.0.1:{port} ({what}, {which}): " in result.output
+
+
+def test_a_planner_that_raises_ends_its_session_not_the_dispatcher(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    from ippc.dispatch import run as dispatch_run
+    from ippc.planners.base import Planner
+
+    class Broken(Planner):
+        name = "broken"
+
+        def act(self, obs):  # type: ignore[no-untyped-def]
+            raise RuntimeError("planner bug")
+
+    real = dispatch_run.make_planner
+    monkeypatch.setattr(
+        dispatch_run, "make_planner", lambda n, o: Broken() if n == "broken" else real(n, o)
+    )
+    report = simulate(DOMAIN, ONE, seed=1, planner=PlannerSpec("broken"), rounds=1)
+    assert report.planner_error == "the planner raised RuntimeError: planner bug"
+    assert report.session_status == "dropped" and report.turns == 0
+    # the command line prints the report and says so in its status
+    monkeypatch.setattr("ippc.dispatch.cli.make_planner", lambda n, o: Broken())
+    result = CliRunner().invoke(main, [str(DOMAIN), str(ONE), "--simulate", "--planner", "broken"])
+    assert result.exit_code == 1
+    assert "goal not reached: 0 turns" in result.output
+    assert "planner: the planner raised RuntimeError: planner bug" in result.output
+    assert result.output.endswith("rddl-dispatch: the session dropped\n")
