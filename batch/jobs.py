@@ -147,7 +147,14 @@ def run_job(job: Job) -> JobResult:
         return _run_own_server(job, started)
     except (KeyboardInterrupt, SystemExit):
         raise
-    except Exception as err:  # a bug or a broken instance must not stop the batch
+    except BaseException as err:
+        # Ctrl-C that arrives while trio runs a task reaches us inside an exception
+        # group: it is still Ctrl-C (the batch stops), not a failed job
+        if isinstance(err, BaseExceptionGroup) and err.subgroup(KeyboardInterrupt) is not None:
+            raise KeyboardInterrupt from None
+        if not isinstance(err, Exception):
+            raise
+        # a bug or a broken instance must not stop the batch
         log.debug("job %s failed", job.key, exc_info=True)
         return JobResult(job.key, "failed", _leaf_text(err), started, time.time())
 

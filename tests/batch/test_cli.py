@@ -184,3 +184,31 @@ def test_a_planner_that_raises_fails_its_job_with_the_planners_words(
     assert result.reason == (
         "the client closed the connection; the client: the planner raised RuntimeError: planner bug"
     )
+
+
+def test_ctrl_c_inside_a_serial_job_stops_the_batch_cleanly(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from ippc.batch import jobs, load_experiment, run_batch
+
+    real = jobs._play_client
+    calls: list[str] = []
+
+    async def interrupted_second(job, host, port):  # type: ignore[no-untyped-def]
+        calls.append(job.key)
+        if len(calls) == 2:
+            raise KeyboardInterrupt  # as trio delivers Ctrl-C inside a running task
+        return await real(job, host, port)
+
+    monkeypatch.setattr(jobs, "_play_client", interrupted_second)
+    instance = REPO / "domains" / "print_jobs" / "instance1.rddl"
+    exp = tmp_path / "e.toml"
+    exp.write_text(f'rounds = 1\ninstances = ["{instance}"]\n')
+    db = tmp_path / "e.sqlite"
+    summary = run_batch(load_experiment(exp), db, jobs=1)
+    assert summary.interrupted and (summary.finished, summary.failed) == (1, 0)
+    with BatchStore(db) as store:
+        assert {j.planner: j.status for j in store.jobs()} == {
+            "noop": "finished",
+            "random": "interrupted",  # was left 'running', the batch ended with a traceback
+        }
