@@ -18,6 +18,7 @@ from ..planners.base import PlannerError, make_planner
 from ..rddl import RDDLError
 from ..server.store import ResultStore, StoreError
 from .config import SensingConfig, SensingConfigError
+from .dispatcher import DispatcherError
 from .run import (
     DEFAULT_ROUNDS,
     ListenError,
@@ -213,6 +214,8 @@ def main(
             )
         except (RDDLError, KBError) as err:
             raise click.ClickException(str(err)) from None
+        except DispatcherError as err:
+            raise click.ClickException(f"{instance}: {err}") from None
     else:
         report = _robot(
             domain,
@@ -280,6 +283,8 @@ def _robot(
         )
     except (RDDLError, KBError, SensingConfigError, RobotFileError) as err:
         raise click.ClickException(str(err)) from None
+    except DispatcherError as err:
+        raise click.ClickException(f"{instance}: {err}") from None
     if not robot.handlers.names():
         logging.getLogger(__name__).warning(
             "no action handler registered (give --robot FILE): every action fails"

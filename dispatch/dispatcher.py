@@ -61,11 +61,21 @@ from .actions import Dispatch, GroundAction, Handlers, Result, Status, parameter
 from .clock import Clock, WallClock
 from .sensing import Sensing
 
-__all__ = ["Dispatcher", "ExecutedAction", "changed_groundings", "draw_free_fluents"]
+__all__ = [
+    "Dispatcher",
+    "DispatcherError",
+    "ExecutedAction",
+    "changed_groundings",
+    "draw_free_fluents",
+]
 
 log = logging.getLogger(__name__)
 
 SOURCE = "dispatcher"
+
+
+class DispatcherError(ValueError):
+    """An instance the dispatcher cannot serve (a partially observed one)."""
 
 
 def draw_free_fluents(model: Model) -> frozenset[str]:
@@ -197,7 +207,7 @@ class Dispatcher(Environment):
     ):
         model = kb.model
         if model.is_pomdp:
-            raise ValueError(
+            raise DispatcherError(
                 f"{model.name} is partially observed: the dispatcher serves the knowledge "
                 "base's state, so only MDP domains"
             )

@@ -308,3 +308,15 @@ def test_a_planner_that_raises_ends_its_session_not_the_dispatcher(
     assert "goal not reached: 0 turns" in result.output
     assert "planner: the planner raised RuntimeError: planner bug" in result.output
     assert result.output.endswith("rddl-dispatch: the session dropped\n")
+
+
+@pytest.mark.parametrize("mode", [["--simulate"], ["--port", "0"]], ids=["simulate", "robot"])
+def test_a_partially_observed_instance_is_refused_in_one_line(mode: list[str]) -> None:
+    folder = Path(__file__).resolve().parents[2] / "domains" / "print_jobs_pomdp"
+    instance = folder / "instance1.rddl"
+    result = CliRunner().invoke(main, [str(folder / "domain.rddl"), str(instance), *mode, "-q"])
+    assert result.exit_code == 1
+    assert result.output == (
+        f"Error: {instance}: print_jobs_pomdp_inst_1 is partially observed: the dispatcher "
+        "serves the knowledge base's state, so only MDP domains\n"
+    )
