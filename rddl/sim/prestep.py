@@ -40,6 +40,14 @@ package; `Simulator.prepare` / `finish` compile and call the two parts.
 from __future__ import annotations
 
 import ast
+import threading
+
+# CPython 3.11 keeps the AST constructor's recursion depth in one counter per
+# interpreter, not per thread: two threads in ast.parse at once (simulators built
+# side by side, as rddl-batch's sessions on the threads of a Dask worker do) can
+# fail with "SystemError: AST constructor recursion depth mismatch" (CPython
+# gh-106905). Parses here take turns.
+_PARSE_LOCK = threading.Lock()
 
 __all__ = ["split_step_source"]
 
@@ -72,7 +80,8 @@ def split_step_source(source: str) -> tuple[str, str, list[str]] | None:
     """(pre source, post source, names pre hands to post) for the source of
     a generated step function `def NAME(S, A, B, rng, check): ...`, or None
     when it is not worth or not safe to split (see the module docstring)."""
-    tree = ast.parse(source)
+    with _PARSE_LOCK:
+        tree = ast.parse(source)
     if len(tree.body) != 1 or not isinstance(tree.body[0], ast.FunctionDef):
         return None
     fn = tree.body[0]

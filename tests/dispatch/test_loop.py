@@ -250,10 +250,10 @@ def test_plan_of_skips_sessions_rddl_server_played(tmp_path: Path) -> None:
 
 @pytest.mark.alone
 def test_real_prost_reaches_the_goal() -> None:
-    binary = os.environ.get("IPPC_REAL_PROST")
+    binary = os.environ.get("PROST_BIN")
     if not binary:
         pytest.skip(
-            "set IPPC_REAL_PROST to PROST's search program (e.g. a build's bin/search-release, "
+            "no PROST: set PROST_BIN to PROST's search program (e.g. a build's bin/search-release, "
             "with rddl-parser-release beside it) to run the dispatcher against the real PROST"
         )
     report = simulate(
