@@ -57,6 +57,8 @@ bench: install
 	$(BIN)/python bench/parse.py
 	$(BIN)/python bench/sim.py
 	$(BIN)/python bench/server.py
+	$(BIN)/python bench/kb.py
+	$(BIN)/python bench/dispatch.py
 
 # The import packages: every top-level folder with an __init__.py but tests/.
 PACKAGES := $(sort $(patsubst %/__init__.py,%,$(filter-out tests/__init__.py,$(wildcard */__init__.py))))
