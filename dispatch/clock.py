@@ -10,21 +10,25 @@ then lasts as long as its longest action, not the sum of them.
 
 from __future__ import annotations
 
+from abc import ABC, abstractmethod
+
 import trio
 
 __all__ = ["Clock", "SimulatedClock", "WallClock"]
 
 
-class Clock:
+class Clock(ABC):
     """Seconds on some clock, and waiting on it."""
 
     simulated = False
 
+    @abstractmethod
     def now(self) -> float:
-        raise NotImplementedError
+        """The current time, in this clock's seconds."""
 
+    @abstractmethod
     async def sleep_until(self, when: float) -> None:
-        raise NotImplementedError
+        """Return once the clock reads `when` or later."""
 
     async def sleep(self, seconds: float) -> None:
         await self.sleep_until(self.now() + max(0.0, seconds))
