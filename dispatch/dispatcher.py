@@ -49,7 +49,6 @@ import numpy as np
 import trio
 
 from ..kb import KnowledgeBase, Update
-from ..planners.determinise import has_draws
 from ..protocol import Actions, ObservedFluentsWriter
 from ..rddl import ast as A
 from ..rddl.model import DERIVED, INTERM, STATE, Model, PVariable, Value
@@ -93,7 +92,7 @@ def draw_free_fluents(model: Model) -> frozenset[str]:
             return True
         if name in stack:  # a cycle the checker let through: be careful
             return False
-        result = not has_draws(cpf.expr)
+        result = not A.has_draws(cpf.expr)
         if result:
             reads = {(n.name, n.primed) for n in A.walk(cpf.expr) if isinstance(n, A.PVar)}
             for other, primed in sorted(reads):

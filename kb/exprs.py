@@ -145,12 +145,3 @@ def strip_delta(e: A.Expr) -> A.Expr:
 def mentions(e: A.Expr, names: frozenset[str] | set[str]) -> bool:
     """Whether a pvariable of `names` occurs in `e`."""
     return any(isinstance(n, A.PVar) and n.name in names for n in A.walk(e))
-
-
-def has_draw(e: A.Expr) -> bool:
-    for n in A.walk(e):
-        if isinstance(n, (A.Discrete, A.DiscreteOver, A.VectorDistribution)):
-            return True
-        if isinstance(n, A.Distribution) and n.name not in ("KronDelta", "DiracDelta"):
-            return True
-    return False

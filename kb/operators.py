@@ -56,7 +56,6 @@ from .exprs import (
     conjoin,
     conjuncts,
     free_vars,
-    has_draw,
     inline_interm,
     mentions,
     negate,
@@ -404,7 +403,7 @@ class Translator:
         if not cases and isinstance(e, A.Binary) and e.op in ("|", "^"):
             parts = list(_flatten(e, e.op))
             rest = [x for x in parts if x != frame]
-            if len(rest) < len(parts) and rest and not any(has_draw(x) for x in rest):
+            if len(rest) < len(parts) and rest and not any(A.has_draws(x) for x in rest):
                 other = rest[0] if len(rest) == 1 else _join(rest, e.op)
                 if e.op == "|":  # f | X: true where X, else unchanged
                     return [(other, TRUE), (None, frame)]
@@ -567,7 +566,7 @@ class Translator:
         if isinstance(v, A.Discrete):
             self._discrete(where, cpf, v, ctx, atom, names, prob)
             return
-        if has_draw(v):
+        if A.has_draws(v):
             self.report(where, f"a draw of another kind ({write_expr(v)})", cpf.loc)
             return
         e = substitute(v, names)
@@ -628,7 +627,7 @@ class Translator:
             return
         if isinstance(v, A.Binary) and v.op in ("^", "&", "|"):
             parts = list(_flatten(v, "^" if v.op == "&" else v.op))
-            draws = [x for x in parts if has_draw(x)]
+            draws = [x for x in parts if A.has_draws(x)]
             if len(draws) == 1:
                 rest = [x for x in parts if x is not draws[0]]
                 cond = substitute(_join(rest, v.op if v.op != "&" else "^"), names)
@@ -665,7 +664,7 @@ class Translator:
                         negated,
                     )
                 return
-        if not has_draw(v):
+        if not A.has_draws(v):
             self.report(
                 where,
                 f"a value that is a formula, not a constant or a draw ({write_expr(v)}); "

@@ -61,22 +61,12 @@ from ..rddl.model import Model
 EULER_GAMMA = 0.5772156649015329
 
 
-def has_draws(expr: A.Expr) -> bool:
-    """Whether `expr` draws a random value anywhere."""
-    for node in A.walk(expr):
-        if isinstance(node, (A.Discrete, A.DiscreteOver, A.VectorDistribution)):
-            return True
-        if isinstance(node, A.Distribution) and node.name not in ("KronDelta", "DiracDelta"):
-            return True
-    return False
-
-
 def model_has_draws(model: Model) -> bool:
     """Whether any cpf or the reward of `model` draws a random value."""
     exprs = [cpf.expr for cpf in model.cpfs.values()]
     if model.reward is not None:
         exprs.append(model.reward)
-    return any(has_draws(e) for e in exprs)
+    return any(A.has_draws(e) for e in exprs)
 
 
 def determinise(model: Model) -> Model:

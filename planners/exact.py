@@ -57,7 +57,6 @@ from ..rddl.simulator import Simulator, State
 from ..rddl.wire import WireCodec
 from ..rddl.writer import write
 from .base import Observation, Planner, PlannerError, SessionInfo, WireFluent
-from .determinise import has_draws
 from .mcts import enumerate_boolean
 
 log = logging.getLogger(__name__)
@@ -104,23 +103,25 @@ def _probability(e: A.Expr, fluent: str) -> A.Expr:
     a random condition mixes its branches by the condition's probability,
     and `exists`/`forall` over draws are products over their objects."""
     loc = e.loc
-    if not has_draws(e):
+    if not A.has_draws(e):
         return _indicator(e, loc)
     if isinstance(e, A.Distribution) and e.name == "Bernoulli":
         (p,) = e.args
-        if has_draws(p):
+        if A.has_draws(p):
             raise ExactUnsupported(f"{fluent}: a Bernoulli whose probability draws{_where(e)}")
         return A.Distribution("DiracDelta", (p,), loc)  # the simulator's cast to real
     if isinstance(e, A.Distribution) and e.name == "KronDelta":
         return _probability(e.args[0], fluent)
     if isinstance(e, A.If):
         then, else_ = _probability(e.then, fluent), _probability(e.else_, fluent)
-        if not has_draws(e.cond):
+        if not A.has_draws(e.cond):
             return dataclasses.replace(e, then=then, else_=else_)
         pc = _probability(e.cond, fluent)
         return A.Binary("+", _times(pc, then, loc), _times(_not(pc, loc), else_, loc), loc)
     if isinstance(e, A.Switch):
-        if has_draws(e.subject) or any(c.label is not None and has_draws(c.label) for c in e.cases):
+        if A.has_draws(e.subject) or any(
+            c.label is not None and A.has_draws(c.label) for c in e.cases
+        ):
             raise ExactUnsupported(f"{fluent}: a switch whose subject or labels draw{_where(e)}")
         cases = tuple(dataclasses.replace(c, value=_probability(c.value, fluent)) for c in e.cases)
         return dataclasses.replace(e, cases=cases)
@@ -164,9 +165,9 @@ def check_supported(model: Model) -> None:
             raise ExactUnsupported(f"action fluent {p.name} is real-valued")
         if p.kind in ("interm-fluent", "derived-fluent"):
             cpf = model.cpfs.get(p.name)
-            if cpf is not None and has_draws(cpf.expr):
+            if cpf is not None and A.has_draws(cpf.expr):
                 raise ExactUnsupported(f"{p.kind} {p.name} draws")
-    if model.reward is not None and has_draws(model.reward):
+    if model.reward is not None and A.has_draws(model.reward):
         raise ExactUnsupported("the reward draws")
     if model.reward is not None:
         for node in A.walk(model.reward):

@@ -410,6 +410,19 @@ def walk(expr: Expr):  # type: ignore[no-untyped-def]
         stack.extend(reversed(children(node)))
 
 
+def is_draw(node: Expr) -> bool:
+    """Whether the node itself draws a random value: every distribution but the
+    deterministic KronDelta and DiracDelta."""
+    if isinstance(node, (Discrete, DiscreteOver, VectorDistribution)):
+        return True
+    return isinstance(node, Distribution) and node.name not in ("KronDelta", "DiracDelta")
+
+
+def has_draws(expr: Expr) -> bool:
+    """Whether `expr` draws a random value anywhere."""
+    return any(is_draw(node) for node in walk(expr))
+
+
 def children(node: Expr) -> list[Expr]:
     """The direct sub-expressions of a node, left to right."""
     if isinstance(node, PVar):

@@ -69,12 +69,6 @@ _WIDEN_LIMIT = 4096
 _UFUNC_CALL = re.compile(r"(_\w+)\(\{0\}, \{1\}\)$")  # a template `_add({0}, {1})`
 
 
-def _is_draw(e: A.Expr) -> bool:
-    if isinstance(e, (A.Discrete, A.DiscreteOver, A.VectorDistribution)):
-        return True
-    return isinstance(e, A.Distribution) and e.name not in ("KronDelta", "DiracDelta")
-
-
 class _CompilerBase:
     """Writes the generated functions of one model (see the package's
     docstring); `begin` starts a function, `compile` adds an expression's
@@ -528,7 +522,7 @@ class _CompilerBase:
     def is_random(self, e: A.Expr) -> bool:
         hit = self._random.get(id(e))
         if hit is None:
-            hit = (e, _is_draw(e) or any(self.is_random(c) for c in A.children(e)))
+            hit = (e, A.is_draw(e) or any(self.is_random(c) for c in A.children(e)))
             self._random[id(e)] = hit
         return hit[1]
 
