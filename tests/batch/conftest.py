@@ -10,8 +10,7 @@ from pathlib import Path
 import pytest
 from ippc.batch import BatchStore, load_experiment, run_batch, score
 
-REPO = Path(__file__).resolve().parents[2]
-RDDLSIM_RDDL = REPO / "tests" / "data" / "rddlsim" / "rddl"
+from ..conftest import RDDLSIM_RDDL, REPO
 
 SMALL = f"""
 name = "small-e2e"

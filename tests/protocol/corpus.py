@@ -14,7 +14,8 @@ from pathlib import Path
 
 from ippc.protocol import XML_DECLARATION
 
-_DATA = Path(__file__).resolve().parents[1] / "data"
+from ..conftest import DATA as _DATA
+
 _TRANSCRIPTS = _DATA / "rddlsim" / "transcripts"
 _PROST = _DATA / "prost"
 

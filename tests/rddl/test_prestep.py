@@ -6,7 +6,6 @@ from __future__ import annotations
 import ast
 import logging
 import textwrap
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -14,9 +13,8 @@ from ippc.rddl import load_pair
 from ippc.rddl.sim.prestep import split_step_source
 from ippc.rddl.simulator import SimulationError, Simulator, State, Step
 
+from ..conftest import RDDLSIM_RDDL as RECORDED
 from ..conftest import corpus_pairs
-
-RECORDED = Path(__file__).resolve().parents[1] / "data" / "rddlsim" / "rddl"
 
 
 def _sim(domain: str, instance: str) -> Simulator:

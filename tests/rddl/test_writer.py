@@ -20,7 +20,9 @@ from ippc.rddl import ast as A
 from ippc.rddl import parse, parse_expr, parse_file
 from ippc.rddl.writer import format_number, write, write_expr
 
-TRANSCRIPTS = Path(__file__).resolve().parents[1] / "data" / "rddlsim"
+from ..conftest import DATA
+
+TRANSCRIPTS = DATA / "rddlsim"
 
 
 # ------------------------------------------------------------- helpers
