@@ -16,11 +16,10 @@ from .experiment import (
     Experiment,
     ExperimentError,
     PlannerSpec,
-    check_experiment,
     load_experiment,
     parse_experiment,
 )
-from .instances import ResolvedInstance, resolve_instances
+from .instances import ResolvedInstance, check_experiment, resolve_instances
 from .jobs import Job, JobResult, build_jobs, run_job, stable_seed
 from .rddlsim_log import read_rddlsim_log
 from .results import BatchStore, RoundRecord

@@ -10,7 +10,8 @@ from pathlib import Path
 import click
 
 from ..server.store import StoreError
-from .experiment import ExperimentError, check_experiment
+from .experiment import ExperimentError
+from .instances import check_experiment
 from .progress import format_duration
 from .results import BatchStore, RoundRecord
 from .scoring import RULES, ScoreError, ScoreTable, score

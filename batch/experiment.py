@@ -22,7 +22,7 @@ A planner table may say ``optional = true``: a registered planner that cannot be
 ``noop`` and ``random`` always run: they are the baselines of the IPPC scores. Every
 problem of a file is reported at once, each with its line and column
 (`ExperimentError`), before anything runs; instances are checked by `batch.instances`
-the same way (`check_experiment` does both and reports every problem of both).
+the same way (its `check_experiment` does both and reports every problem of both).
 """
 
 from __future__ import annotations
@@ -33,10 +33,7 @@ import shlex
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
-
-if TYPE_CHECKING:
-    from .instances import ResolvedInstance
+from typing import Any
 
 __all__ = [
     "BASELINES",
@@ -44,7 +41,6 @@ __all__ = [
     "Experiment",
     "ExperimentError",
     "PlannerSpec",
-    "check_experiment",
     "load_experiment",
     "parse_experiment",
 ]
@@ -189,26 +185,6 @@ class _Lines:
         if not self.lines:
             return 1, 1
         return len(self.lines), len(self.lines[-1]) + 1
-
-
-def check_experiment(path: str | Path) -> tuple[Experiment, list[ResolvedInstance]]:
-    """`load_experiment`, and its instances resolved and checked: one `ExperimentError`
-    with every problem of the file and of its instances, in the order of the file."""
-    from .instances import resolve_instances
-
-    try:
-        experiment = load_experiment(path)
-    except ExperimentError as err:
-        if err.partial is None:
-            raise
-        problems = list(err.problems)
-        try:
-            resolve_instances(err.partial)
-        except ExperimentError as more:
-            problems += more.problems
-        where = str(err.partial.path) if err.partial.path is not None else "<experiment>"
-        raise ExperimentError(sort_problems(problems, where), err.partial) from None
-    return experiment, resolve_instances(experiment)
 
 
 def load_experiment(path: str | Path) -> Experiment:

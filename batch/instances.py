@@ -26,9 +26,9 @@ from pathlib import Path
 
 from ..rddl import CheckResult, check_files, check_pair
 from ..rddl.model import Model
-from .experiment import Experiment, ExperimentError, sort_problems
+from .experiment import Experiment, ExperimentError, load_experiment, sort_problems
 
-__all__ = ["ResolvedInstance", "domain_of", "resolve_instances"]
+__all__ = ["ResolvedInstance", "check_experiment", "domain_of", "resolve_instances"]
 
 _REPO_SPEC = re.compile(r"^([A-Za-z0-9_\-]+)(?::([0-9,\-\s]+))?$")
 
@@ -185,3 +185,21 @@ def resolve_instances(experiment: Experiment) -> list[ResolvedInstance]:
             seen.add(inst.name)
             unique.append(inst)
     return unique
+
+
+def check_experiment(path: str | Path) -> tuple[Experiment, list[ResolvedInstance]]:
+    """`load_experiment`, and its instances resolved and checked: one `ExperimentError`
+    with every problem of the file and of its instances, in the order of the file."""
+    try:
+        experiment = load_experiment(path)
+    except ExperimentError as err:
+        if err.partial is None:
+            raise
+        problems = list(err.problems)
+        try:
+            resolve_instances(err.partial)
+        except ExperimentError as more:
+            problems += more.problems
+        where = str(err.partial.path) if err.partial.path is not None else "<experiment>"
+        raise ExperimentError(sort_problems(problems, where), err.partial) from None
+    return experiment, resolve_instances(experiment)

@@ -30,7 +30,7 @@ from ..rddl.model import NON_FLUENT, STATE, PVariable
 from ..rddl.writer import write
 
 if TYPE_CHECKING:
-    from .knowledge_base import KnowledgeBase
+    from .view import KnowledgeView
 
 
 def _literal(p: PVariable, code: object, names: tuple[str, ...] | None) -> A.Literal:
@@ -45,7 +45,7 @@ def _literal(p: PVariable, code: object, names: tuple[str, ...] | None) -> A.Lit
     return A.EnumLit(name) if name.startswith("@") else A.ObjectLit(name, False)
 
 
-def _assignments(kb: KnowledgeBase, p: PVariable, explicit: bool) -> list[A.Assignment]:
+def _assignments(kb: KnowledgeView, p: PVariable, explicit: bool) -> list[A.Assignment]:
     store = kb._store
     arr = store.arrays[p.name]
     default = store.default_code(p)
@@ -69,7 +69,7 @@ def _assignments(kb: KnowledgeBase, p: PVariable, explicit: bool) -> list[A.Assi
     return out
 
 
-def _one_default(kb: KnowledgeBase, kind: str) -> list[A.Assignment]:
+def _one_default(kb: KnowledgeView, kind: str) -> list[A.Assignment]:
     """One grounding at its default, so that a section is never empty
     (some planners' parsers refuse `init-state { };`)."""
     for p in kb._store.pvars.values():
@@ -88,7 +88,7 @@ def _one_default(kb: KnowledgeBase, kind: str) -> list[A.Assignment]:
     return []
 
 
-def _objects(kb: KnowledgeBase) -> tuple[A.ObjectsDef, ...]:
+def _objects(kb: KnowledgeView) -> tuple[A.ObjectsDef, ...]:
     """Each object once, under its own (most specific) type, in the model's
     order; objects the domain declares itself stay there."""
     model = kb.model
@@ -118,7 +118,7 @@ def _objects(kb: KnowledgeBase) -> tuple[A.ObjectsDef, ...]:
 
 
 def rddl_instance(
-    kb: KnowledgeBase,
+    kb: KnowledgeView,
     name: str | None = None,
     non_fluents_name: str | None = None,
     explicit: bool = False,

@@ -20,6 +20,7 @@ after this step, and what to record beyond rddlsim's fields.
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, Protocol
 
@@ -32,7 +33,6 @@ from ..rddl.wire import DecodedActions, WireCodec, WireError, WireFluent, value_
 
 if TYPE_CHECKING:
     from ..rddl.model import Model
-    from .registry import Instance
 
 __all__ = [
     "Environment",
@@ -42,6 +42,7 @@ __all__ = [
     "SessionDropped",
     "SimulatedEpisode",
     "StepFailed",
+    "TurnLister",
     "decode_actions",
 ]
 
@@ -123,6 +124,17 @@ class Environments(Protocol):
         ...
 
 
+class TurnLister(Protocol):
+    """What a `SimulatedEpisode` asks of its instance (a `Registry`'s `Instance`, which
+    imports this module): a turn's fluents and their elements, written once per state."""
+
+    def turn_fluents(
+        self, codec: WireCodec, state: State, observation: Mapping[str, np.ndarray] | None
+    ) -> tuple[list[WireFluent] | None, str | None]:
+        """What a turn lists in `state` (MDP) or with `observation` (POMDP)."""
+        ...
+
+
 def decode_actions(codec: WireCodec, actions: Actions) -> DecodedActions:
     """Received actions -> arrays, with rddlsim's reading of values; what
     rddlsim drops the session for raises `SessionDropped`."""
@@ -171,7 +183,7 @@ class SimulatedEpisode(Episode):
         "_invariants",
     )
 
-    def __init__(self, instance: Instance, sim: Simulator, codec: WireCodec, seed: int):
+    def __init__(self, instance: TurnLister, sim: Simulator, codec: WireCodec, seed: int):
         self.instance = instance
         self.sim = sim
         self.codec = codec

@@ -23,7 +23,7 @@ from ..operators import Atom, Effect
 from ..store import KBError
 
 if TYPE_CHECKING:
-    from ..knowledge_base import KnowledgeBase
+    from ..view import KnowledgeView
 
 MODES = ("most-likely", "all-outcomes")
 EXOGENOUS_MODES = ("current", "most-likely", "outcomes")
@@ -60,7 +60,7 @@ class _Translator:
     """Conditions and effects of the operators in PDDL, and what one writing
     collects on the way."""
 
-    def __init__(self, kb: KnowledgeBase, mode: str, exogenous: str = "current"):
+    def __init__(self, kb: KnowledgeView, mode: str, exogenous: str = "current"):
         if mode not in MODES:
             raise KBError(
                 f"unknown determinisation {mode!r} (one of {', '.join(MODES)})", "bad-params"

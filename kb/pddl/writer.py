@@ -17,7 +17,7 @@ from ..operators import EXOGENOUS, Operator, ProbabilisticEffect
 from ..store import KBError
 
 if TYPE_CHECKING:
-    from ..knowledge_base import KnowledgeBase
+    from ..view import KnowledgeView
 from .costs import _Costs
 from .determinisation import _Determiniser
 from .normal_form import normal_effect
@@ -274,7 +274,7 @@ def _own_type(model: Any, member: str) -> str:
 
 
 def to_pddl(
-    kb: KnowledgeBase, mode: str = "most-likely", exogenous: str = "current"
+    kb: KnowledgeView, mode: str = "most-likely", exogenous: str = "current"
 ) -> tuple[str, str]:
     """(domain, problem) PDDL texts of `kb` (see the package's docstring)."""
     return _Writer(kb, mode, exogenous).write()

@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..sim.state import SimulationError
+from ..sim_types import SimulationError
 from .propagate import Domain, _Conflict, _Node, _Problem, _propagate
 
 

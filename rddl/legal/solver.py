@@ -9,23 +9,20 @@ import logging
 import math
 import weakref
 from collections import OrderedDict
-from collections.abc import Sequence
-from typing import TYPE_CHECKING
+from collections.abc import Mapping, Sequence
+from typing import Protocol
 
 import numpy as np
 
 from .. import ast as A
-from ..model import STATE
-from ..sim.state import State
+from ..model import STATE, Model, PVariable
+from ..sim_types import State
 from ..writer import write_expr
 from .ground import Element, Grounder, variables
 from .intervals import _truth, interval
 from .propagate import Domain, _as_linear, _Conflict, _Linear, _Node, _Problem, _propagate
 from .search import ActionSpace, LegalActionsUnsupported, NoLegalAction, _search
 from .static import FALSE, Layout
-
-if TYPE_CHECKING:
-    from ..sim.simulator import Simulator
 
 log = logging.getLogger(__name__)
 
@@ -39,6 +36,26 @@ _INT_VALUES = 256  # most values of an int action variable kept explicitly
 _INT_LIMIT = 2**31
 
 
+class SimulatorView(Protocol):
+    """What the solver uses of a `Simulator` (`ippc.rddl.sim`): the model, the action and
+    state fluents, noop and the batched legality check. The simulator calls the solver
+    (`Simulator.random_actions`, `Simulator.legal_actions`), so the solver takes this
+    interface instead of importing the class."""
+
+    @property
+    def model(self) -> Model: ...
+
+    @property
+    def action_fluents(self) -> list[PVariable]: ...
+
+    @property
+    def state_fluents(self) -> list[PVariable]: ...
+
+    def noop(self, batch: int = 1) -> dict[str, Array]: ...
+
+    def check_actions(self, state: State, actions: Mapping[str, Array]) -> Array: ...
+
+
 class LegalActions:
     """Legal joint actions of one instance, state by state (see the module
     docstring). Spaces are cached by the values of the state fluents the
@@ -49,7 +66,7 @@ class LegalActions:
     >>> legal.sample(state, rng, 10)    # ten uniform draws
     """
 
-    def __init__(self, sim: Simulator, node_limit: int = 2000, cache_size: int = 4096) -> None:
+    def __init__(self, sim: SimulatorView, node_limit: int = 2000, cache_size: int = 4096) -> None:
         real = [p.name for p in sim.action_fluents if p.range == "real"]
         if real:
             raise LegalActionsUnsupported(
@@ -78,7 +95,7 @@ class LegalActions:
         }
 
     @staticmethod
-    def supports(sim: Simulator) -> bool:
+    def supports(sim: SimulatorView) -> bool:
         """Whether the action space can be enumerated (no real actions)."""
         return all(p.range != "real" for p in sim.action_fluents)
 
@@ -346,10 +363,10 @@ class LegalActions:
         return arrays
 
 
-_SOLVERS: weakref.WeakKeyDictionary[Simulator, LegalActions] = weakref.WeakKeyDictionary()
+_SOLVERS: weakref.WeakKeyDictionary[SimulatorView, LegalActions] = weakref.WeakKeyDictionary()
 
 
-def solver_for(sim: Simulator) -> LegalActions:
+def solver_for(sim: SimulatorView) -> LegalActions:
     """The `LegalActions` of a simulator, made once and shared (with its
     cache) by everything that asks for it. Raises `LegalActionsUnsupported`
     for real-valued action fluents."""

@@ -19,7 +19,7 @@ import numpy as np
 
 from .. import ast as A
 from ..model import ACTION, NON_FLUENT, STATE, Model, PVariable
-from ..sim.base import _int_enum_value
+from ..sim_types import int_enum_value
 
 Array = np.ndarray
 Ground = tuple[Any, ...]
@@ -87,7 +87,7 @@ class Layout:
         self.numeric_of_code: dict[str, Array] = {}
         for t, info in model.types.items():
             if info.kind == "enum":
-                ints = [_int_enum_value(m) for m in info.members]  # as the simulator reads them
+                ints = [int_enum_value(m) for m in info.members]  # as the simulator reads them
                 if all(v is not None for v in ints):
                     self.numeric_of_code[t] = np.array(ints, dtype=np.int64)
 

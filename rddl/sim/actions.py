@@ -20,16 +20,43 @@ compiler.
 
 from __future__ import annotations
 
-from collections.abc import Iterable
-from typing import TYPE_CHECKING, Any
+from collections.abc import Iterable, Mapping
+from typing import Any, Protocol
 
 import numpy as np
 
-from ..model import PVariable
+from .. import ast as A
+from ..model import Model, PVariable, Value
+from .compiler import _Compiler
 from .state import Array, SimulationError, State
 
-if TYPE_CHECKING:
-    from .simulator import Simulator
+
+class SimulatorView(Protocol):
+    """What choosing actions reads of a `Simulator` (`simulator.py`, which imports this
+    module and passes itself); the legal-action solver takes it too."""
+
+    @property
+    def model(self) -> Model: ...
+
+    @property
+    def state_fluents(self) -> list[PVariable]: ...
+
+    @property
+    def action_fluents(self) -> list[PVariable]: ...
+
+    @property
+    def _compiler(self) -> _Compiler: ...
+
+    @property
+    def _preconditions(self) -> list[A.Expr]: ...
+
+    def _encode(self, p: PVariable, value: Value) -> Any: ...
+
+    def _ground(self, p: PVariable) -> Iterable[tuple[tuple[str, ...], tuple[int, ...]]]: ...
+
+    def noop(self, batch: int = 1) -> dict[str, Array]: ...
+
+    def check_actions(self, state: State, actions: Mapping[str, Array]) -> Array: ...
 
 
 _WINDOW = 32  # candidates per state tested in one batched call in random_actions
@@ -63,11 +90,11 @@ class _Order:
         return self.known[rows, positions]
 
 
-def _groundings(sim: Simulator) -> list[tuple[PVariable, tuple[int, ...]]]:
+def _groundings(sim: SimulatorView) -> list[tuple[PVariable, tuple[int, ...]]]:
     return [(p, idx) for p in sim.action_fluents for _, idx in sim._ground(p)]
 
 
-def _random_value(sim: Simulator, p: PVariable, rng: np.random.Generator, n: int) -> Array:
+def _random_value(sim: SimulatorView, p: PVariable, rng: np.random.Generator, n: int) -> Array:
     """n values of action `p` that differ from its default."""
     default = sim._encode(p, sim.model.default_of(p))
     if p.range == "bool":
@@ -84,7 +111,7 @@ def _random_value(sim: Simulator, p: PVariable, rng: np.random.Generator, n: int
     return default + rng.uniform(-1.0, 1.0, n)  # type: ignore[no-any-return]
 
 
-def random_actions(sim: Simulator, state: State, rng: np.random.Generator) -> dict[str, Array]:
+def random_actions(sim: SimulatorView, state: State, rng: np.random.Generator) -> dict[str, Array]:
     """Random legal actions for every state of the batch, in the manner of
     rddlsim's RandomConcurrentPolicy: each action fluent in turn, its
     groundings in a random order; each grounding is taken with
@@ -126,7 +153,7 @@ def random_actions(sim: Simulator, state: State, rng: np.random.Generator) -> di
 
 
 def _take_legal(
-    sim: Simulator,
+    sim: SimulatorView,
     state: State,
     actions: dict[str, Array],
     p: PVariable,
@@ -210,7 +237,7 @@ def _take_legal(
 
 
 def _coin_flips(
-    sim: Simulator, actions: dict[str, Array], batch: int, rng: np.random.Generator
+    sim: SimulatorView, actions: dict[str, Array], batch: int, rng: np.random.Generator
 ) -> Iterable[tuple[PVariable, Array, _Order, Array]]:
     """Per action fluent with groundings: its flattened action array (a
     view to write into), a random order of its groundings per state, and
@@ -224,7 +251,7 @@ def _coin_flips(
 
 
 def _random_unconstrained(
-    sim: Simulator,
+    sim: SimulatorView,
     actions: dict[str, Array],
     batch: int,
     limit: int | None,
@@ -245,7 +272,7 @@ def _random_unconstrained(
 
 
 def legal_actions(
-    sim: Simulator, state: State, index: int = 0, limit: int = 100_000
+    sim: SimulatorView, state: State, index: int = 0, limit: int = 100_000
 ) -> dict[str, Array]:
     """Every legal joint action in one state, stacked along the batch axis
     (noop first when legal), found by `ippc.rddl.legal` (bool, enum and int

@@ -29,6 +29,7 @@ import numpy as np
 
 from .. import ast as A
 from ..model import NON_FLUENT, Model, PVariable
+from ..sim_types import int_enum_value as _int_enum_value
 from .bounds import _bounds_same, _bounds_trunc
 from .code import (
     _DTYPE_CODE,
@@ -54,14 +55,6 @@ def _broadcasts_to(shape: tuple[int, ...], target: tuple[int, ...]) -> bool:
         return np.broadcast_shapes(shape, target) == target
     except ValueError:
         return False
-
-
-def _int_enum_value(name: str) -> int | None:
-    body = name[1:]
-    try:
-        return int(body)
-    except ValueError:
-        return None
 
 
 # the largest constant (in elements) made for a batch of one out of a smaller one

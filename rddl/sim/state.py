@@ -1,8 +1,9 @@
 """The simulator's public types: `State`, `Step`, `Prepared` and
 `SimulationError`, and `_make_step` (a `Step` built fast).
 
-Owns nothing but these containers; imports only numpy. Every other module
-of the package may use them.
+Owns nothing but these containers; imports only numpy and `ippc.rddl.sim_types`, where
+`State` and `SimulationError` live (the legal-action solver, `ippc.rddl.legal`, uses them
+too, and imports nothing of this package). Every other module of the package may use them.
 """
 
 from __future__ import annotations
@@ -12,46 +13,11 @@ from typing import Any
 
 import numpy as np
 
+from ..sim_types import SimulationError, State
+
+__all__ = ["Prepared", "SimulationError", "State", "Step"]
+
 Array = np.ndarray
-
-
-class SimulationError(Exception):
-    """A step cannot be taken: a constraint is violated, or a distribution
-    was given parameters outside its domain. The message names the
-    constraint (with its place in the file), the grounding and the actions."""
-
-
-class State:
-    """A batch of states: one array per state fluent, batch axis first.
-
-    Cheap to copy (`copy`) and to index (`state[i]`, `state[mask]`).
-    """
-
-    __slots__ = ("values",)
-
-    def __init__(self, values: dict[str, Array]):
-        self.values = values
-
-    @property
-    def batch(self) -> int:
-        for v in self.values.values():
-            return v.shape[0]  # type: ignore[no-any-return]
-        return 1
-
-    def copy(self) -> State:
-        return State({k: v.copy() for k, v in self.values.items()})
-
-    def __getitem__(self, index: Any) -> State:
-        out = {}
-        for k, v in self.values.items():
-            x = v[index]
-            if isinstance(index, (int, np.integer)):
-                x = x[None]
-            out[k] = x
-        return State(out)
-
-    def __repr__(self) -> str:
-        return f"State(batch={self.batch}, fluents={len(self.values)})"
 
 
 @dataclass(frozen=True)
