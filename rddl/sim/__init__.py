@@ -151,6 +151,7 @@ and what it may call):
     simulator      Simulator: arrays, the step, the two-part step, wire names
     actions        random_actions and legal_actions
     build          writing the step and constraint functions from the model
+    parts          what build and actions read of a Simulator (a protocol)
     order          the order of the cpfs
     compiler       _Compiler, assembled from the layers below
     base           values, statements, constant folding, `compile`

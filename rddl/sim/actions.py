@@ -20,44 +20,14 @@ compiler.
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Mapping
-from typing import Any, Protocol
+from collections.abc import Iterable
+from typing import Any
 
 import numpy as np
 
-from .. import ast as A
-from ..model import Model, PVariable, Value
-from .compiler import _Compiler
+from ..model import PVariable
+from .parts import SimulatorParts
 from .state import Array, SimulationError, State
-
-
-class SimulatorView(Protocol):
-    """What choosing actions reads of a `Simulator` (`simulator.py`, which imports this
-    module and passes itself); the legal-action solver takes it too."""
-
-    @property
-    def model(self) -> Model: ...
-
-    @property
-    def state_fluents(self) -> list[PVariable]: ...
-
-    @property
-    def action_fluents(self) -> list[PVariable]: ...
-
-    @property
-    def _compiler(self) -> _Compiler: ...
-
-    @property
-    def _preconditions(self) -> list[A.Expr]: ...
-
-    def _encode(self, p: PVariable, value: Value) -> Any: ...
-
-    def _ground(self, p: PVariable) -> Iterable[tuple[tuple[str, ...], tuple[int, ...]]]: ...
-
-    def noop(self, batch: int = 1) -> dict[str, Array]: ...
-
-    def check_actions(self, state: State, actions: Mapping[str, Array]) -> Array: ...
-
 
 _WINDOW = 32  # candidates per state tested in one batched call in random_actions
 _TRIAL_BUDGET = 4_000_000  # action values copied per state and batched call, at most
@@ -90,11 +60,11 @@ class _Order:
         return self.known[rows, positions]
 
 
-def _groundings(sim: SimulatorView) -> list[tuple[PVariable, tuple[int, ...]]]:
+def _groundings(sim: SimulatorParts) -> list[tuple[PVariable, tuple[int, ...]]]:
     return [(p, idx) for p in sim.action_fluents for _, idx in sim._ground(p)]
 
 
-def _random_value(sim: SimulatorView, p: PVariable, rng: np.random.Generator, n: int) -> Array:
+def _random_value(sim: SimulatorParts, p: PVariable, rng: np.random.Generator, n: int) -> Array:
     """n values of action `p` that differ from its default."""
     default = sim._encode(p, sim.model.default_of(p))
     if p.range == "bool":
@@ -111,7 +81,7 @@ def _random_value(sim: SimulatorView, p: PVariable, rng: np.random.Generator, n:
     return default + rng.uniform(-1.0, 1.0, n)  # type: ignore[no-any-return]
 
 
-def random_actions(sim: SimulatorView, state: State, rng: np.random.Generator) -> dict[str, Array]:
+def random_actions(sim: SimulatorParts, state: State, rng: np.random.Generator) -> dict[str, Array]:
     """Random legal actions for every state of the batch, in the manner of
     rddlsim's RandomConcurrentPolicy: each action fluent in turn, its
     groundings in a random order; each grounding is taken with
@@ -153,7 +123,7 @@ def random_actions(sim: SimulatorView, state: State, rng: np.random.Generator) -
 
 
 def _take_legal(
-    sim: SimulatorView,
+    sim: SimulatorParts,
     state: State,
     actions: dict[str, Array],
     p: PVariable,
@@ -237,7 +207,7 @@ def _take_legal(
 
 
 def _coin_flips(
-    sim: SimulatorView, actions: dict[str, Array], batch: int, rng: np.random.Generator
+    sim: SimulatorParts, actions: dict[str, Array], batch: int, rng: np.random.Generator
 ) -> Iterable[tuple[PVariable, Array, _Order, Array]]:
     """Per action fluent with groundings: its flattened action array (a
     view to write into), a random order of its groundings per state, and
@@ -251,7 +221,7 @@ def _coin_flips(
 
 
 def _random_unconstrained(
-    sim: SimulatorView,
+    sim: SimulatorParts,
     actions: dict[str, Array],
     batch: int,
     limit: int | None,
@@ -272,7 +242,7 @@ def _random_unconstrained(
 
 
 def legal_actions(
-    sim: SimulatorView, state: State, index: int = 0, limit: int = 100_000
+    sim: SimulatorParts, state: State, index: int = 0, limit: int = 100_000
 ) -> dict[str, Array]:
     """Every legal joint action in one state, stacked along the batch axis
     (noop first when legal), found by `ippc.rddl.legal` (bool, enum and int

@@ -18,67 +18,16 @@ May call the compiler (`compiler._Compiler`, as `sim._compiler`) and `code`;
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping
-from typing import Any, Protocol
+from typing import Any
 
 import numpy as np
 
-from .. import ast as A
-from ..model import OBSERV, STATE, Model, PVariable
+from ..model import OBSERV, STATE
 from .code import _DTYPE_CODE, _batch_first, _batch_last, _last_shape_code, _Node
-from .compiler import _Compiler
-from .state import Array
+from .parts import SimulatorParts
 
 
-class SimulatorView(Protocol):
-    """What the builders read of a `Simulator` (`simulator.py`, which imports this module
-    and passes itself): its model and fluents, its compiler, the constraints and cpfs in
-    order, and the `_fail_*` methods the generated code calls."""
-
-    @property
-    def model(self) -> Model: ...
-
-    @property
-    def state_fluents(self) -> list[PVariable]: ...
-
-    @property
-    def action_fluents(self) -> list[PVariable]: ...
-
-    @property
-    def observ_fluents(self) -> list[PVariable]: ...
-
-    @property
-    def _compiler(self) -> _Compiler: ...
-
-    @property
-    def _nf_nodes(self) -> Mapping[str, tuple[_Node, None]]: ...
-
-    @property
-    def _defaults(self) -> Mapping[str, Array]: ...
-
-    @property
-    def _cpf_order(self) -> list[str]: ...
-
-    @property
-    def _preconditions(self) -> list[A.Expr]: ...
-
-    @property
-    def _invariants(self) -> list[A.Expr]: ...
-
-    @property
-    def _terminations(self) -> list[A.Expr]: ...
-
-    def _dtype(self, p: PVariable) -> Any: ...
-
-    def _fail_nondef(self, actions: Mapping[str, Array], batch: int) -> None: ...
-
-    def _fail_precondition(
-        self, k: int, holds: Array, actions: Mapping[str, Array], batch: int
-    ) -> None: ...
-
-    def _fail_invariant(self, k: int, holds: Array, batch: int) -> None: ...
-
-
-def _bind(sim: SimulatorView, state: Mapping[str, _Node] | None = None) -> None:
+def _bind(sim: SimulatorParts, state: Mapping[str, _Node] | None = None) -> None:
     """What pvariable names mean in the function being written: the
     non-fluents' values, the state (`S`, or the given next state) and
     the actions (`A`)."""
@@ -112,7 +61,7 @@ def _bind(sim: SimulatorView, state: Mapping[str, _Node] | None = None) -> None:
 
 
 def _output(
-    sim: SimulatorView, node: _Node, shape: tuple[int, ...], dtype: Any, used: set[str]
+    sim: SimulatorParts, node: _Node, shape: tuple[int, ...], dtype: Any, used: set[str]
 ) -> _Node:
     """`node` as an array of its own, shaped (*shape, B): the value
     itself where this step allocated it and nothing else returns it,
@@ -145,7 +94,7 @@ def _output(
     return _Node(name, full, dtype, node.rtype, True, owner=name)
 
 
-def _emit_constraints(sim: SimulatorView) -> None:
+def _emit_constraints(sim: SimulatorParts) -> None:
     """Statements that raise `SimulationError` for the first violated
     constraint: max-nondef-actions, then the preconditions in order."""
     c = sim._compiler
@@ -172,7 +121,7 @@ def _emit_constraints(sim: SimulatorView) -> None:
             c.fail(sim._fail_precondition, str(k), holds.code, "A", "B")
 
 
-def build_step(sim: SimulatorView, large: bool, one: bool = False) -> Callable[..., Any]:
+def build_step(sim: SimulatorParts, large: bool, one: bool = False) -> Callable[..., Any]:
     c = sim._compiler
     model = sim.model
     name = "_step_large" if large else "_step_one" if one else "_step"
@@ -244,7 +193,7 @@ def build_step(sim: SimulatorView, large: bool, one: bool = False) -> Callable[.
 
 
 def build_constraints(
-    sim: SimulatorView, name: str, explain: bool, large: bool = False
+    sim: SimulatorParts, name: str, explain: bool, large: bool = False
 ) -> Callable[..., Any]:
     """`explain`: a function that raises for the first violated
     constraint (max-nondef-actions included); else one that returns
