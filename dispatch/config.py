@@ -21,7 +21,8 @@ value expression gives the fluent's value; with wildcards it gives the
 values of several groundings at once, as a mapping (or a list of pairs)
 from the wildcards' objects (one name, `"a:b"` for two, or a tuple) to
 values. `params` left out means every parameter is a wildcard. A fluent may
-have a list of such entries (several sources).
+have a list of such entries (several sources). `infinite: true` lets a real
+fluent's entry give +-infinity (refused otherwise, as NaN always is).
 
 Expressions run in the restricted evaluator of `ippc.dispatch.expr`. The
 loader checks everything against the model: an unknown fluent, a
@@ -73,6 +74,7 @@ class SensorSpec:
     params: tuple[ParamSpec, ...]
     value: Expression
     where: str  # "file:line:col" of the entry, for run-time messages
+    infinite: bool = False  # a real fluent may be sensed as +-infinity
 
     @property
     def wildcards(self) -> tuple[int, ...]:
@@ -259,11 +261,37 @@ class _Loader:
             return None
         ok = True
         for key in node.value:
-            if key.value not in ("stream", "streams", "topic", "params", "value", "operation"):
+            if key.value not in (
+                "stream",
+                "streams",
+                "topic",
+                "params",
+                "value",
+                "operation",
+                "infinite",
+            ):
                 self.problem(
-                    key, f"{fluent}: unknown key {key.value!r} (known: stream, params, value)"
+                    key,
+                    f"{fluent}: unknown key {key.value!r} (known: stream, params, value, infinite)",
                 )
                 ok = False
+        infinite = False
+        inf_node = node.get("infinite")
+        if inf_node is not None:
+            if not isinstance(inf_node.value, bool):
+                self.problem(
+                    inf_node, f"{fluent}: infinite is true or false, not {inf_node.value!r}"
+                )
+                ok = False
+            elif inf_node.value and self.model.pvariables[fluent].range != "real":
+                self.problem(
+                    inf_node,
+                    f"{fluent}: infinite: true, but {fluent} is "
+                    f"{self.model.pvariables[fluent].range}: only a real fluent holds infinity",
+                )
+                ok = False
+            else:
+                infinite = inf_node.value
         stream_node = node.get("stream") or node.get("streams") or node.get("topic")
         streams: tuple[str, ...] = ()
         if stream_node is None:
@@ -288,7 +316,7 @@ class _Loader:
         value = self.expression(fluent, "value", value_node)
         if value is None or not ok or params is None:
             return None
-        return SensorSpec(fluent, streams, params, value, node.where)
+        return SensorSpec(fluent, streams, params, value, node.where, infinite)
 
     def params(self, fluent: str, node: _Node | None, entry: _Node) -> tuple[ParamSpec, ...] | None:
         p = self.model.pvariables[fluent]

@@ -15,7 +15,8 @@ problem generation.
 from __future__ import annotations
 
 from .goal import Goal, GoalFact
-from .knowledge_base import KnowledgeBase, Subscriber
+from .invariants import Violation
+from .knowledge_base import InvariantError, KnowledgeBase, Subscriber
 from .operators import (
     EXOGENOUS,
     Atom,
@@ -41,10 +42,12 @@ __all__ = [
     "parameter_names",
     "Goal",
     "GoalFact",
+    "InvariantError",
     "KBError",
     "KnowledgeBase",
     "Subscriber",
     "Unsupported",
     "Update",
     "Value",
+    "Violation",
 ]

@@ -20,10 +20,17 @@ whole formula exactly.
 
 Besides the `goal` fluent, an rddlsim `terminate-when` horizon is the goal
 of its instance.
+
+At run time a controller may replace the domain's goal by a conjunction of
+ground facts (ROSPlan's ADD_GOAL and REMOVE_GOAL updates): such a goal has
+source "runtime" and no lifted formula; `parse_goal_fact` reads the facts
+(`GoalFact`s, "holding(r1)", "~present(office)", "status == @busy", or
+`{"fluent", "args", "value"}`).
 """
 
 from __future__ import annotations
 
+import re
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from typing import Any
@@ -35,6 +42,7 @@ from .evaluate import Env, Evaluator, NotEvaluable
 from .report import Unsupported
 
 GOAL_FLUENT = "goal"
+RUNTIME = "runtime"  # the source of a goal set at run time
 
 
 @dataclass(frozen=True)
@@ -78,11 +86,17 @@ class Goal:
     source: str
     facts: tuple[GoalFact, ...]
     unsupported: tuple[Unsupported, ...]
+    version: int = 0  # 0 at load, one more at every goal change
 
     @property
     def text(self) -> str | None:
-        """The lifted condition in RDDL syntax."""
-        return None if self.formula is None else write_expr(self.formula)
+        """The lifted condition in RDDL syntax (a run-time goal's: the
+        conjunction of its facts)."""
+        if self.formula is None:
+            if self.source == RUNTIME and self.facts:
+                return " ^ ".join(str(f) for f in self.facts)
+            return None
+        return write_expr(self.formula)
 
     def to_json(self) -> dict[str, Any]:
         return {
@@ -91,6 +105,7 @@ class Goal:
             "formula": self.text,
             "facts": [f.to_json() for f in self.facts],
             "unsupported": [u.to_json() for u in self.unsupported],
+            "version": self.version,
         }
 
 
@@ -295,3 +310,54 @@ def ground_goal(
     # a fact named twice (two destinations sharing one condition) once
     facts = tuple(dict.fromkeys(g.facts))
     return Goal(where.fluent, where.formula, where.source, facts, tuple(g.unsupported))
+
+
+_FACT_TEXT = re.compile(
+    r"^\s*(?P<neg>~)?\s*(?P<name>[A-Za-z_][\w\-]*)\s*"
+    r"(?:\((?P<args>[^()]*)\))?\s*(?:==\s*(?P<value>\S+))?\s*$"
+)
+
+
+def _literal(text: str) -> Value:
+    if text in ("true", "false"):
+        return text == "true"
+    for kind in (int, float):
+        try:
+            return kind(text)  # type: ignore[no-any-return]
+        except ValueError:
+            pass
+    return text
+
+
+def parse_goal_fact(item: Any) -> GoalFact:
+    """One goal fact from a `GoalFact`, a text ("holding(r1)",
+    "~present(office)", "delivered", "status == @busy") or a dict
+    `{"fluent", "args"?, "value"?}` (value true by default). Checks the
+    shape only; the knowledge base checks names and values. `ValueError`
+    says what is wrong."""
+    if isinstance(item, GoalFact):
+        return item
+    if isinstance(item, str):
+        m = _FACT_TEXT.match(item)
+        if m is None or (m["neg"] and m["value"]):
+            raise ValueError(
+                f"{item!r} is not a goal fact: write name(args), ~name(args) or name(args) == value"
+            )
+        args = tuple(a.strip() for a in (m["args"] or "").split(",") if a.strip())
+        value: Value = False if m["neg"] else True
+        if m["value"] is not None:
+            value = _literal(m["value"])
+        return GoalFact(m["name"], args, value)
+    if isinstance(item, dict):
+        unknown = sorted(set(item) - {"fluent", "args", "value"})
+        fluent, args, value = item.get("fluent"), item.get("args", []), item.get("value", True)
+        if unknown:
+            raise ValueError(f"unknown key(s) {', '.join(unknown)} (known: fluent, args, value)")
+        if not isinstance(fluent, str):
+            raise ValueError(f"'fluent' must be a name, not {fluent!r}")
+        if not isinstance(args, (list, tuple)) or not all(isinstance(a, str) for a in args):
+            raise ValueError(f"'args' must be a list of names, not {args!r}")
+        if value is None or isinstance(value, (dict, list)):
+            raise ValueError(f"'value' must be a bool, a number or a name, not {value!r}")
+        return GoalFact(fluent, tuple(args), value)
+    raise ValueError(f"a goal fact is a text or {{fluent, args, value}}, not {item!r}")

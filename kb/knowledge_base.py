@@ -6,13 +6,20 @@ under their names (`domain_name`, `types`, `predicates`, `functions`,
 `operators`, `operator`, `goal`, `metric`, `instances`, `enum_values`, the
 RDDL parameters, `immediate_reward`), and keeps the state: every grounding
 of every state fluent and non-fluent, closed world (a false fact is stored
-as false), changed by batches of updates that are applied atomically, with
-subscribers told of every change and of who made it.
+as false), changed by batches of updates that are applied atomically (a
+batch is validated whole, values and the domain's state invariants, before
+anything is written), with subscribers told of every change and of who
+made it. The goal is the domain's, or one set at run time (`set_goal`,
+`add_goal`, `remove_goal`, `reset_goal`, as ROSPlan's goal updates);
+journal subscribers see every applied batch and goal change as plain data,
+and `restore` loads a saved state back (`ippc.kb.journal`).
 
 Threads: every public method takes one lock, so sensing threads, a server
 and the dispatcher may share one knowledge base. Subscribers are called
 after the lock is released, in the thread that applied the batch, in the
 order they subscribed; one that raises is logged and the others still run.
+Journal subscribers are called under the lock, so they see the batches in
+the order they were applied.
 """
 
 from __future__ import annotations
@@ -20,7 +27,7 @@ from __future__ import annotations
 import dataclasses
 import logging
 import threading
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -32,7 +39,9 @@ from ..rddl.model import ACTION, NON_FLUENT, STATE, GroundKey, Model, PVariable,
 from ..rddl.simulator import SimulationError, Simulator, State
 from ..rddl.writer import write, write_expr
 from .evaluate import Evaluator, NotEvaluable
-from .goal import Goal, GoalSource, find_goal, ground_goal
+from .goal import RUNTIME, Goal, GoalFact, GoalSource, find_goal, ground_goal, parse_goal_fact
+from .invariants import Invariants, Violation
+from .journal import fact_updates
 from .metric import expression_tree
 from .operators import Operator, Parameter, parameter_names, translate
 from .pddl import to_pddl
@@ -43,6 +52,19 @@ from .store import Change, KBError, Store, Update
 log = logging.getLogger(__name__)
 
 Subscriber = Callable[[list[Change], str], None]
+GoalSubscriber = Callable[[Goal | None, str], None]
+JournalSubscriber = Callable[[dict[str, Any]], None]
+# What set_goal and its kin take: one fact or several (see `parse_goal_fact`).
+GoalFacts = GoalFact | str | Mapping[str, Any] | Iterable[GoalFact | str | Mapping[str, Any]]
+
+
+class InvariantError(KBError):
+    """A batch refused because the state after it would break a state
+    invariant; `violations` names each invariant and grounding."""
+
+    def __init__(self, message: str, violations: Sequence[Violation]):
+        super().__init__(message, "invariant")
+        self.violations = list(violations)
 
 
 class KnowledgeBase:
@@ -65,6 +87,14 @@ class KnowledgeBase:
         self._operators, self._unsupported = translate(model)
         for u in self._unsupported:
             log.info("%s: not in operator form: %s", model.domain_name, u)
+        self._runtime_goal: tuple[GoalFact, ...] | None = None  # None: the domain's goal
+        self._goal_version = 0
+        self._goal_subscribers: list[GoalSubscriber] = []
+        self._journal: list[JournalSubscriber] = []
+        self._seq = 0  # journal entries so far
+        self._invariants = Invariants(model, self._store.pvars.__contains__, self._store.get)
+        for v in self._invariants.violated(self._store.get):
+            log.warning("%s: the initial state breaks a %s", model.name, v)
 
     # ---------------------------------------------------------------- loading
 
@@ -211,32 +241,63 @@ class KnowledgeBase:
         the knowledge base does not store it."""
         return self._store.pvar(fluent).kind == STATE
 
-    def apply(self, updates: Iterable[Update], source: str) -> list[Change]:
+    def apply(
+        self, updates: Iterable[Update], source: str, *, check_invariants: bool = True
+    ) -> list[Change]:
         """Apply a batch of updates, all or nothing.
 
         A bad update raises KBError naming it (its position, its fluent and
-        what is wrong), and nothing changes. Returns the groundings whose
-        value really changed (an update to the current value is no change);
-        subscribers hear of the batch once, with `source`, if it changed
-        anything. Changing a non-fluent is allowed (ROSPlan's clients fill
-        distances in at start-up): the goal is grounded again."""
+        what is wrong: an unknown name, a value the fluent cannot hold, such
+        as NaN or an int beyond 64 bits), and nothing changes. So does a
+        batch after which the state would break one of the domain's state
+        invariants that holds now (`InvariantError`, code "invariant",
+        naming the invariant and its grounding), unless `check_invariants`
+        is False (a tool that writes states no transition reaches). Returns
+        the groundings whose value really changed (an update to the current
+        value is no change); subscribers hear of the batch once, with
+        `source`, if it changed anything. Changing a non-fluent is allowed
+        (ROSPlan's clients fill distances in at start-up): the goal is
+        grounded again."""
         with self._lock:
             writes = self._store.prepare(updates)
+            if check_invariants:
+                self._check_invariants(writes)
             changes = self._store.commit(writes)
-            self._after_change(changes)
+            self._after_change(changes, source)
         self._notify(changes, source)
         return changes
+
+    def _check_invariants(self, writes: list[Any]) -> None:
+        """InvariantError when the state after `writes` breaks a state
+        invariant that holds now (see `ippc.kb.invariants`)."""
+        if not self._invariants:
+            return
+        written = {p.name for p, _, _ in writes}
+        broken = self._invariants.broken(self._store.get, self._store.lookup_after(writes), written)
+        if broken:
+            raise InvariantError(
+                "the batch would break the " + "; the ".join(str(v) for v in broken), broken
+            )
+
+    def check_invariants(self) -> list[Violation]:
+        """The groundings of the state invariants that the current state
+        breaks (at most 5; empty when it is a possible state)."""
+        with self._lock:
+            return self._invariants.violated(self._store.get)
 
     def subscribe(self, callback: Subscriber) -> Callable[[], None]:
         """Call `callback(changes, source)` after every batch that changed
         something; returns the function that unsubscribes it."""
+        return self._listen(self._subscribers, callback)
+
+    def _listen(self, listeners: list[Any], callback: Any) -> Callable[[], None]:
         with self._lock:
-            self._subscribers.append(callback)
+            listeners.append(callback)
 
         def unsubscribe() -> None:
             with self._lock:
-                if callback in self._subscribers:
-                    self._subscribers.remove(callback)
+                if callback in listeners:
+                    listeners.remove(callback)
 
         return unsubscribe
 
@@ -251,11 +312,94 @@ class KnowledgeBase:
             except Exception:
                 log.exception("knowledge-base subscriber %r failed on a change by %s", cb, source)
 
-    def _after_change(self, changes: list[Change]) -> None:
+    def _after_change(self, changes: list[Change], source: str) -> None:
+        """Under the lock, after a batch is written: caches, the journal."""
         if any(self._store.pvars[c.fluent].kind == NON_FLUENT for c in changes):
             self._goal = None
             self._simulator = None  # it folds non-fluents into constants
             self._term_simulators = {}
+        if changes:
+            self._log({"source": source, "changes": [c.to_json() for c in changes]})
+
+    # -- journal
+
+    def subscribe_journal(self, callback: JournalSubscriber) -> Callable[[], None]:
+        """Call `callback(entry)` for every applied batch that changed
+        something and every goal change, with plain JSON-able data
+        (`ippc.kb.journal` has the shapes): `{"seq", "source", "changes"}`
+        or `{"seq", "source", "goal", "version"}`. It runs under the
+        knowledge base's lock, so entries come in the order they happened:
+        keep it short and never wait in it for another thread. Returns the
+        function that unsubscribes it."""
+        return self._listen(self._journal, callback)
+
+    def _log(self, entry: dict[str, Any]) -> None:
+        self._seq += 1
+        entry = {"seq": self._seq, **entry}
+        for cb in list(self._journal):
+            try:
+                cb(entry)
+            except Exception:
+                log.exception("knowledge-base journal subscriber %r failed", cb)
+
+    def snapshot(self) -> dict[str, Any]:
+        """The knowledge as plain data: `facts`, every grounding of every
+        state fluent and the non-fluents that differ from the loaded files
+        (`{"fluent", "args", "value"}`), and `goal`, the run-time goal's
+        facts (None: the domain's own goal). What `restore` takes."""
+        with self._lock:
+            st = self._store
+            facts: list[dict[str, Any]] = []
+            for p in st.pvars.values():
+                if p.kind == NON_FLUENT:
+                    loaded = st.initial(p)
+                    diff = np.argwhere(st.arrays[p.name] != loaded).tolist()
+                    items = [
+                        (st.args_of(p, tuple(i)), st.decode(p, st.arrays[p.name][tuple(i)]))
+                        for i in diff
+                    ]
+                else:
+                    items = list(st.items(p))
+                facts.extend({"fluent": p.name, "args": list(a), "value": v} for a, v in items)
+            goal = self._runtime_goal
+            return {"facts": facts, "goal": None if goal is None else [f.to_json() for f in goal]}
+
+    def restore(
+        self, saved: Mapping[str, Any] | Iterable[Any], source: str = "restore"
+    ) -> list[Change]:
+        """Load saved knowledge in one atomic batch: a `snapshot()` (or a
+        `journal.fold` of journal entries), or a list of facts
+        (`{"fluent", "args", "value"}` or `(fluent, args, value)`). A
+        "goal" key restores the goal too (None: the domain's). Checked as a
+        whole before anything changes (KBError otherwise); subscribers and
+        the journal hear of it as of any batch, with `source`. The changes."""
+        has_goal = False
+        goal_facts: tuple[GoalFact, ...] | None = None
+        if isinstance(saved, Mapping):
+            unknown = sorted(set(saved) - {"facts", "goal"})
+            if unknown:
+                raise KBError(
+                    f"restore: unknown key(s) {', '.join(unknown)} (known: facts, goal)",
+                    "bad-params",
+                )
+            facts = saved.get("facts") or []
+            if "goal" in saved:
+                has_goal = True
+                if saved["goal"] is not None:
+                    goal_facts = self._goal_facts(saved["goal"], allow_empty=True)
+        else:
+            facts = saved
+        updates = fact_updates(facts)
+        with self._lock:
+            writes = self._store.prepare(updates)
+            self._check_invariants(writes)
+            changes = self._store.commit(writes)
+            self._after_change(changes, source)
+            goal = self._change_goal(goal_facts, source) if has_goal else None
+        self._notify(changes, source)
+        if has_goal:
+            self._notify_goal(goal, source)
+        return changes
 
     # -- sensed flags
 
@@ -308,6 +452,7 @@ class KnowledgeBase:
                     )
                 new[p.name] = arr.astype(want.dtype, copy=False)
             changes = st.replace(new)
+            self._after_change(changes, source)
         self._notify(changes, source)
         return changes
 
@@ -387,12 +532,18 @@ class KnowledgeBase:
         the current non-fluents, the lifted formula and what could not be
         put into facts; None when the domain has no goal."""
         with self._lock:
+            if self._runtime_goal is not None:
+                if not self._runtime_goal:
+                    return None
+                return Goal(None, None, RUNTIME, self._runtime_goal, (), self._goal_version)
             if self._goal_source is None:
                 return None
-            if self._goal is None:
-                self._goal = ground_goal(
-                    self.model, self._goal_source, self._evaluator, self.is_state_fluent
-                )
+            if self._goal is None or self._goal.version != self._goal_version:
+                if self._goal is None:
+                    self._goal = ground_goal(
+                        self.model, self._goal_source, self._evaluator, self.is_state_fluent
+                    )
+                self._goal = dataclasses.replace(self._goal, version=self._goal_version)
             return self._goal
 
     def goal_holds(self) -> bool | None:
@@ -400,6 +551,10 @@ class KnowledgeBase:
         true, or its condition holds now (decided on the whole formula, not
         only the facts `goal()` lists). None when the domain has no goal."""
         with self._lock:
+            if self._runtime_goal is not None:
+                if not self._runtime_goal:
+                    return None
+                return all(self._fact_holds(f) for f in self._runtime_goal)
             where = self._goal_source
             if where is None:
                 return None
@@ -411,6 +566,139 @@ class KnowledgeBase:
                 return bool(self._evaluator(where.formula, {}))
             except NotEvaluable as err:
                 raise KBError(f"the goal at {where.loc} cannot be decided: {err}") from None
+
+    def _fact_holds(self, fact: GoalFact) -> bool:
+        value = self._store.get(fact.fluent, fact.args)
+        if isinstance(value, str) or isinstance(fact.value, str):
+            return value == fact.value
+        return float(value) == float(fact.value)
+
+    # -- goals at run time (ROSPlan's ADD_GOAL / REMOVE_GOAL)
+
+    def set_goal(self, facts: GoalFacts, source: str = "api") -> Goal | None:
+        """Make the goal the conjunction of `facts` (a `GoalFact`, a text
+        such as "holding(r1)", "~present(office)" or "status == @busy", a
+        `{"fluent", "args", "value"}` dict, or a list of them), in place of
+        the domain's. Every fact is checked before anything changes
+        (KBError naming it). Goal subscribers hear of it, and `version`
+        grows, even when the facts are the ones already asked for (a new
+        request). An empty list leaves no goal. The new goal."""
+        new = self._goal_facts(facts, allow_empty=True)
+        with self._lock:
+            goal = self._change_goal(new, source)
+        self._notify_goal(goal, source)
+        return goal
+
+    def add_goal(self, facts: GoalFacts, source: str = "api") -> Goal | None:
+        """Add `facts` to the current goal's facts (the domain goal's ground
+        facts when no goal was set at run time). A fact that asks the
+        opposite of one in the goal is refused. The new goal."""
+        extra = self._goal_facts(facts)
+        with self._lock:
+            current = list(self._current_goal_facts())
+            known = {(f.fluent, f.args): f for f in current}
+            for f in extra:
+                other = known.get((f.fluent, f.args))
+                if other is not None and other != f:
+                    raise KBError(f"goal fact {f} contradicts {other}, in the goal", "bad-goal")
+                if other is None:
+                    current.append(f)
+                    known[(f.fluent, f.args)] = f
+            goal = self._change_goal(tuple(current), source)
+        self._notify_goal(goal, source)
+        return goal
+
+    def remove_goal(self, facts: GoalFacts, source: str = "api") -> Goal | None:
+        """Remove `facts` from the current goal's facts; one that is not in
+        the goal is an error (`not-in-goal`), and nothing changes. Removing
+        the last leaves no goal (`reset_goal` brings the domain's back).
+        The new goal."""
+        gone = self._goal_facts(facts)
+        with self._lock:
+            current = self._current_goal_facts()
+            for f in gone:
+                if f not in current:
+                    listed = ", ".join(str(g) for g in current) or "nothing"
+                    raise KBError(f"{f} is not in the goal (it asks for {listed})", "not-in-goal")
+            goal = self._change_goal(tuple(f for f in current if f not in gone), source)
+        self._notify_goal(goal, source)
+        return goal
+
+    def reset_goal(self, source: str = "api") -> Goal | None:
+        """Back to the domain's own goal (the `goal` fluent's condition).
+        The goal (None: the domain has none)."""
+        with self._lock:
+            goal = self._change_goal(None, source)
+        self._notify_goal(goal, source)
+        return goal
+
+    def subscribe_goal(self, callback: GoalSubscriber) -> Callable[[], None]:
+        """Call `callback(goal, source)` after every goal change (goal None:
+        no goal now); returns the function that unsubscribes it."""
+        return self._listen(self._goal_subscribers, callback)
+
+    def _current_goal_facts(self) -> tuple[GoalFact, ...]:
+        if self._runtime_goal is not None:
+            return self._runtime_goal
+        goal = self.goal()
+        return () if goal is None else goal.facts
+
+    def _change_goal(self, facts: tuple[GoalFact, ...] | None, source: str) -> Goal | None:
+        """Under the lock: the new run-time goal (None: the domain's)."""
+        self._runtime_goal = facts
+        self._goal_version += 1
+        self._log(
+            {
+                "source": source,
+                "goal": None if facts is None else [f.to_json() for f in facts],
+                "version": self._goal_version,
+            }
+        )
+        return self.goal()
+
+    def _notify_goal(self, goal: Goal | None, source: str) -> None:
+        with self._lock:
+            subscribers = list(self._goal_subscribers)
+        for cb in subscribers:
+            try:
+                cb(goal, source)
+            except Exception:
+                log.exception("goal subscriber %r failed on a change by %s", cb, source)
+
+    def _goal_facts(self, items: GoalFacts, allow_empty: bool = False) -> tuple[GoalFact, ...]:
+        """Checked goal facts with canonical names and values, or a KBError
+        naming the first bad one."""
+        if isinstance(items, (str, GoalFact, Mapping)):
+            items = [items]
+        out: dict[tuple[str, tuple[str, ...]], GoalFact] = {}
+        n = 0
+        for n, item in enumerate(items, 1):
+            try:
+                try:
+                    fact = parse_goal_fact(item)
+                except ValueError as err:
+                    raise KBError(str(err), "bad-goal") from None
+                with self._lock:
+                    st = self._store
+                    p = st.pvar(fact.fluent)
+                    if p.kind != STATE:
+                        raise KBError(
+                            f"'{p.name}' is a non-fluent: a goal asks for state fluents",
+                            "not-state",
+                        )
+                    idx = st.index(p, fact.args)
+                    fact = GoalFact(
+                        p.name, st.args_of(p, idx), st.decode(p, st.encode(p, fact.value))
+                    )
+                other = out.get((fact.fluent, fact.args))
+                if other is not None and other != fact:
+                    raise KBError(f"it contradicts {other}", "bad-goal")
+            except KBError as err:
+                raise KBError(f"goal fact {n} ({item}): {err}", err.code) from None
+            out[(fact.fluent, fact.args)] = fact
+        if n == 0 and not allow_empty:
+            raise KBError("no goal facts given", "bad-goal")
+        return tuple(out.values())
 
     # ---------------------------------------------------------------- reward
 
@@ -527,4 +815,11 @@ class KnowledgeBase:
         return f"KnowledgeBase({self.model.name!r}, domain={self.model.domain_name!r})"
 
 
-__all__ = ["KnowledgeBase", "Subscriber"]
+__all__ = [
+    "GoalFacts",
+    "GoalSubscriber",
+    "InvariantError",
+    "JournalSubscriber",
+    "KnowledgeBase",
+    "Subscriber",
+]

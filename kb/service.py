@@ -16,12 +16,14 @@ from typing import Any
 
 import trio
 
+from .goal import Goal
 from .jsonl import DEFAULT_HOST, Connection, JsonlServer, RequestError
 from .knowledge_base import KnowledgeBase
 from .store import Change, Update
 
 SUBSCRIPTION = "kb.subscription"  # key of a connection's subscription in Connection.state
 CHANGED_EVENT = "kb.changed"
+GOAL_EVENT = "kb.goal_changed"
 
 
 def _param(
@@ -176,8 +178,9 @@ def register_kb(server: JsonlServer, kb: KnowledgeBase) -> None:
 
     @method("kb.subscribe")
     def subscribe(params: dict[str, Any], conn: Connection) -> Any:
-        """send this connection a kb.changed event after every change: {fluents?}"""
+        """send this connection kb.changed events after every change, kb.goal_changed after every goal change: {fluents?, goal?}"""
         names = _param(params, "fluents", list, None)
+        goals = _param(params, "goal", bool, True)
         wanted = None
         if names is not None:
             for f in names:
@@ -191,12 +194,26 @@ def register_kb(server: JsonlServer, kb: KnowledgeBase) -> None:
             if mine and not conn.closed:  # (send_event is safe from any thread)
                 conn.send_event(CHANGED_EVENT, {"source": source, "changes": _changes(mine)})
 
+        def tell_goal(goal: Goal | None, source: str) -> None:
+            if not conn.closed:
+                conn.send_event(
+                    GOAL_EVENT, {"source": source, "goal": None if goal is None else goal.to_json()}
+                )
+
         old = conn.state.pop(SUBSCRIPTION, None)
         if old is not None:
             old()
         else:
             conn.on_close(_drop_subscription)
-        conn.state[SUBSCRIPTION] = kb.subscribe(tell)
+        stop_changes = kb.subscribe(tell)
+        stop_goal = kb.subscribe_goal(tell_goal) if goals else None
+
+        def stop() -> None:
+            stop_changes()
+            if stop_goal is not None:
+                stop_goal()
+
+        conn.state[SUBSCRIPTION] = stop
         return {"subscribed": sorted(wanted) if wanted is not None else "all"}
 
     @method("kb.unsubscribe")
@@ -257,6 +274,56 @@ def register_kb(server: JsonlServer, kb: KnowledgeBase) -> None:
         """the goal: ground facts, the lifted formula, what is not in facts (null: none)"""
         g = kb.goal()
         return None if g is None else g.to_json()
+
+    def goal_params(params: dict[str, Any]) -> list[Any]:
+        goals = _param(params, "goals", list)
+        for n, g in enumerate(goals, 1):
+            if not isinstance(g, (str, dict)):
+                raise RequestError(
+                    "bad-params",
+                    f"goal fact {n} is a text such as 'holding(r1)' or "
+                    f"{{fluent, args, value}}, not {g!r}",
+                )
+        return goals
+
+    def goal_reply(goal: Goal | None) -> Any:
+        return None if goal is None else goal.to_json()
+
+    def goal_method(name: str, change: Callable[..., Goal | None], doc: str) -> None:
+        def handler(params: dict[str, Any], conn: Connection) -> Any:
+            source = _param(params, "source", str, f"jsonl:{conn.peer}")
+            return goal_reply(change(goal_params(params), source))
+
+        server.register(name, handler, doc)
+
+    goal_method(
+        "kb.set_goal",
+        kb.set_goal,
+        "replace the goal by ground facts ([] for none): "
+        '{goals: ["holding(r1)", {fluent, args, value}, ...], source?}',
+    )
+    goal_method("kb.add_goal", kb.add_goal, "add facts to the goal: {goals, source?}")
+    goal_method("kb.remove_goal", kb.remove_goal, "remove facts from the goal: {goals, source?}")
+
+    @method("kb.reset_goal")
+    def reset_goal(params: dict[str, Any], conn: Connection) -> Any:
+        """back to the domain's own goal: {source?}"""
+        source = _param(params, "source", str, f"jsonl:{conn.peer}")
+        return goal_reply(kb.reset_goal(source))
+
+    @method("kb.snapshot")
+    def snapshot(params: dict[str, Any], conn: Connection) -> Any:
+        """the knowledge as plain data: {facts, goal}, what kb.restore takes"""
+        return kb.snapshot()
+
+    @method("kb.restore")
+    def restore(params: dict[str, Any], conn: Connection) -> Any:
+        """load saved knowledge in one atomic batch: {facts: [{fluent, args, value}], goal?, source?}"""
+        saved: dict[str, Any] = {"facts": _param(params, "facts", list)}
+        if "goal" in params:
+            saved["goal"] = _param(params, "goal", list, None)
+        source = _param(params, "source", str, "restore")
+        return {"changes": _changes(kb.restore(saved, source))}
 
     @method("kb.goal_holds")
     def goal_holds(params: dict[str, Any], conn: Connection) -> Any:

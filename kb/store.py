@@ -20,7 +20,7 @@ from __future__ import annotations
 import difflib
 import itertools
 import math
-from collections.abc import Iterable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, Literal
 
@@ -34,6 +34,7 @@ UpdateOp = Literal["add", "remove", "set"]
 UPDATE_OPS: tuple[str, ...] = ("add", "remove", "set")
 
 _DTYPES: dict[str, Any] = {"bool": np.bool_, "int": np.int64, "real": np.float64}
+INT_MIN, INT_MAX = -(2**63), 2**63 - 1  # what an int fluent can hold (int64, as the simulator)
 
 
 class KBError(Exception):
@@ -130,6 +131,10 @@ class Store:
     def default_code(self, p: PVariable) -> Any:
         return self.encode(p, self.model.default_of(p))
 
+    def initial(self, p: PVariable) -> Array:
+        """`p`'s values as the loaded files give them (a new array)."""
+        return self._initial(p)
+
     def _initial(self, p: PVariable) -> Array:
         arr = np.full(self.shape(p), self.default_code(p), dtype=self.dtype(p))
         given = self.model.non_fluent_values if p.kind == NON_FLUENT else self.model.init_state
@@ -193,18 +198,33 @@ class Store:
                 return bool(value)
             raise KBError(f"{where} takes true or false, not {value!r}", "bad-value")
         if p.range == "int":
+            number: int | None = None
             if isinstance(value, (int, np.integer)) and not isinstance(value, (bool, np.bool_)):
-                return int(value)
-            if isinstance(value, float) and value.is_integer():
-                return int(value)
-            raise KBError(f"{where} takes an integer, not {value!r}", "bad-value")
+                number = int(value)
+            elif isinstance(value, (float, np.floating)) and math.isfinite(value):
+                if float(value).is_integer():
+                    number = int(value)
+            if number is None:
+                raise KBError(f"{where} takes an integer, not {value!r}", "bad-value")
+            if not INT_MIN <= number <= INT_MAX:
+                raise KBError(
+                    f"{where} takes a 64-bit integer ({INT_MIN} to {INT_MAX}), not {value!r}",
+                    "out-of-range",
+                )
+            return number
         if p.range == "real":
             if isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(
                 value, (bool, np.bool_)
             ):
-                if math.isnan(float(value)):
+                try:
+                    number_f = float(value)
+                except OverflowError:  # an int beyond the largest double
+                    raise KBError(
+                        f"{where} takes a 64-bit float, not {value!r}", "out-of-range"
+                    ) from None
+                if math.isnan(number_f):
                     raise KBError(f"{where} takes a number, not NaN", "bad-value")
-                return float(value)
+                return number_f
             raise KBError(f"{where} takes a number, not {value!r}", "bad-value")
         codes = self.codes.get(p.range, {})
         if isinstance(value, str):
@@ -286,16 +306,42 @@ class Store:
         return list(writes.values())
 
     def commit(self, writes: Iterable[tuple[PVariable, tuple[int, ...], Any]]) -> list[Change]:
-        """Write validated values; the changes they made."""
+        """Write validated values; the changes they made. Should a write
+        fail all the same, the ones before it are undone and the error
+        raised: nothing is half applied."""
         changes = []
-        for p, idx, code in writes:
-            arr = self.arrays[p.name]
-            if arr[idx] == code:
-                continue
-            old = self.decode(p, arr[idx])
-            arr[idx] = code
-            changes.append(Change(p.name, self.args_of(p, idx), old, self.decode(p, code)))
+        undo: list[tuple[Array, tuple[int, ...], Any]] = []
+        try:
+            for p, idx, code in writes:
+                arr = self.arrays[p.name]
+                if arr[idx] == code:
+                    continue
+                old = self.decode(p, arr[idx])
+                undo.append((arr, idx, arr[idx].copy()))
+                arr[idx] = code
+                changes.append(Change(p.name, self.args_of(p, idx), old, self.decode(p, code)))
+        except BaseException:
+            for arr, idx, before in reversed(undo):
+                arr[idx] = before
+            raise
         return changes
+
+    def lookup_after(
+        self, writes: Iterable[tuple[PVariable, tuple[int, ...], Any]]
+    ) -> Callable[[str, tuple[str, ...]], Value]:
+        """A lookup of the values the store would hold after `writes`
+        (validated), without writing them."""
+        pending = {(p.name, idx): (p, code) for p, idx, code in writes}
+
+        def get(fluent: str, args: tuple[str, ...]) -> Value:
+            p = self.pvar(fluent)
+            idx = self.index(p, args)
+            hit = pending.get((p.name, idx))
+            if hit is not None:
+                return self.decode(hit[0], hit[1])
+            return self.decode(p, self.arrays[p.name][idx])
+
+        return get
 
     def replace(self, new: Mapping[str, Array]) -> list[Change]:
         """Replace whole arrays (already validated, same shapes and dtypes);

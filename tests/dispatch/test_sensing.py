@@ -13,11 +13,19 @@ CONFIG = {
     "rate": 10,
     "sensors": {
         "present": {"stream": "camera", "params": ["*"], "value": "msg.seen"},
-        "robot-at": {
-            "stream": "odometry",
-            "params": ["r1", {"msg": "msg.room"}],
-            "value": "msg.here",
-        },
+        "robot-at": [
+            {  # where the robot is: every room at once
+                "stream": "odometry",
+                "params": ["r1", "*"],
+                "value": "{'hall': msg.room == 'hall', 'office': msg.room == 'office', "
+                "'lab': msg.room == 'lab'}",
+            },
+            {  # one room's beacon: is the robot here?
+                "stream": "beacon",
+                "params": ["r1", {"msg": "msg.room"}],
+                "value": "msg.here",
+            },
+        ],
     },
 }
 
@@ -32,14 +40,15 @@ def test_sensed_fluents_are_marked_and_changes_go_in_one_batch(kb: KnowledgeBase
     sensing = make(kb)
     assert kb.sensed_fluents() == {"present", "robot-at"}
     assert sensing.feed("camera", {"seen": {"office": True, "lab": False}}) == 2
-    assert sensing.feed("odometry", {"room": "office", "here": True}) == 1
+    assert sensing.feed("odometry", {"room": "office"}) == 3  # the first values of three
     assert kb.get("present", ("office",)) is False  # nothing before the batch
     changes = sensing.flush()
     assert {(c.fluent, c.args, c.new) for c in changes} == {
         ("present", ("office",), True),
         ("robot-at", ("r1", "office"), True),
-    }  # present(lab) was false already: no change
-    assert seen == [(2, "sensing")]  # one batch
+        ("robot-at", ("r1", "hall"), False),
+    }  # present(lab) and robot-at(r1, lab) were false already: no change
+    assert seen == [(3, "sensing")]  # one batch
     assert kb.get("present", ("office",)) is True
 
 
@@ -68,12 +77,12 @@ def test_bad_messages_are_logged_and_skipped(kb: KnowledgeBase) -> None:
     assert sensing.feed("camera", {"seen": {"kitchen": True}}) == 0
     assert sensing.feed("camera", {"seen": {"office": "yes"}}) == 0
     assert sensing.feed("camera", {"seen": 3}) == 0
-    assert sensing.feed("odometry", {"room": "mars", "here": True}) == 0
+    assert sensing.feed("beacon", {"room": "mars", "here": True}) == 0
     errors = list(sensing.errors)
     assert len(errors) == 5
     assert "no 'seen' in the message" in errors[0]
     assert "'kitchen' is not an object of type room" in errors[1]
-    assert "present is a bool, the value is 'yes'" in errors[2]
+    assert "present(office) is a bool, the value is 'yes'" in errors[2]
     assert "must be a mapping or a list of pairs" in errors[3]
     assert "'mars' is not an object of type room" in errors[4]
     assert all(e.startswith("<dict>") for e in errors)
@@ -100,7 +109,7 @@ async def test_async_iterators_and_polled_callables_feed_streams(kb: KnowledgeBa
 
     await sensing.attach("camera", camera())
     assert sensing.messages == 2 and sensing.pending() == 1
-    polls = iter([None, {"room": "lab", "here": True}])
+    polls = iter([None, {"room": "lab"}])
     with trio.move_on_after(5):
         async with trio.open_nursery() as nursery:
             nursery.start_soon(sensing.attach, "odometry", lambda: next(polls, None))

@@ -30,7 +30,7 @@ def blocks(lang: str) -> list[str]:
 def test_the_python_examples_run(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.chdir(REPO)  # the page's paths are relative to the repository
     code = blocks("python")
-    assert len(code) == 4
+    assert len(code) == 6
     namespace: dict[str, object] = {}
     for block in code:
         exec(compile(block, str(PAGE), "exec"), namespace)

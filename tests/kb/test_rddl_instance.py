@@ -121,5 +121,6 @@ def test_ippc_instances_round_trip(domain: Path, instance: Path, tmp_path: Path)
     for (name, args), value in list(kb.facts().items()):
         if isinstance(value, bool) and rng.random() < 0.3:
             updates.append(Update("remove" if value else "add", name, args))
-    kb.apply(updates, source="test")
+    # (a state no transition reaches: the domain's state invariants are not asked)
+    kb.apply(updates, source="test", check_invariants=False)
     same_knowledge(kb, reload(kb, domain, tmp_path))
