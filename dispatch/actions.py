@@ -8,9 +8,20 @@ outcomes (succeeded, failed, precondition-false).
 
 `Handlers` keeps the handlers by action name (one for "noop" is called on
 turns without actions, one for "*" for every action without its own) and
-runs one dispatch with a timeout: a handler that raises, answers nonsense
-or hangs is reported as failed with a message saying which; nothing of it
-reaches the dispatcher. What a success changes in the knowledge base is the
+runs one dispatch with a timeout: a handler that raises or answers nonsense
+is reported as failed, one that overruns its timeout as timed out, with a
+message saying which; nothing of it reaches the dispatcher.
+
+The timeout holds whatever the handler does. A handler that awaits is
+cancelled at its deadline. One that blocks the event loop (a blocking
+driver call in the coroutine) or shields its wait from cancellation cannot
+be stopped there, but its time is measured around the call: an answer that
+comes after the deadline is recorded `timed-out`, never `succeeded`. A
+blocking driver call belongs in `run_blocking(fn, *args)`, which runs it in
+a thread under the action's timeout (the thread is abandoned at the
+deadline: the call goes on in the background, its result is dropped), and
+`ippc.dispatch.watchdog` warns, naming the handler, when the loop stays
+blocked. What a success changes in the knowledge base is the
 dispatcher's business (the deterministic effects on fluents that are not
 sensed); a handler may also write to the knowledge base itself.
 """
@@ -20,6 +31,7 @@ from __future__ import annotations
 import enum
 import logging
 import math
+import time
 from collections.abc import Awaitable, Callable, Iterator, Mapping
 from dataclasses import dataclass, field
 from typing import Any
@@ -38,6 +50,7 @@ __all__ = [
     "Result",
     "Status",
     "parameter_keys",
+    "run_blocking",
 ]
 
 log = logging.getLogger(__name__)
@@ -49,6 +62,9 @@ class Status(enum.StrEnum):
     SUCCEEDED = "succeeded"
     FAILED = "failed"
     PRECONDITION_FALSE = "precondition-false"
+    #: the handler did not answer within the action's timeout (it was
+    #: cancelled, or it answered late because it blocked or shielded itself)
+    TIMED_OUT = "timed-out"
 
 
 @dataclass(frozen=True)
@@ -143,6 +159,9 @@ class Handlers:
         self.timeout = timeout
         self._handlers: dict[str, ActionHandler] = {}
         self._warned: set[str] = set()
+        #: what runs now, by dispatch id ("the handler of move(r1,hall,lab)"):
+        #: the watchdog names it when the event loop is blocked
+        self.running: dict[int, str] = {}
 
     def register(self, action: str, handler: ActionHandler) -> Callable[[], None]:
         """Handle `action` (an action fluent's name, "noop" or "*") with
@@ -172,7 +191,9 @@ class Handlers:
     async def run(self, dispatch: Dispatch) -> Result:
         """Run the handler of `dispatch` within its timeout (wall-clock
         seconds: a hung handler is a real hang); every way it can go wrong
-        becomes a failed `Result` that says what happened."""
+        becomes a failed or timed-out `Result` that says what happened. The
+        time is measured around the call, so a handler that blocked the
+        event loop or shielded itself past its deadline is timed out too."""
         handler = self.handler(dispatch.name)
         where = f"the handler of {dispatch.action}"
         if handler is None:
@@ -181,21 +202,53 @@ class Handlers:
                 log.warning("no handler for action %s: it fails", dispatch.name)
             return Result(Status.FAILED, f"no handler for action {dispatch.name!r}", duration=0.0)
         timeout = dispatch.timeout
+        self.running[dispatch.id] = where
+        t0 = time.monotonic()
         try:
             with trio.move_on_after(math.inf if timeout is None else timeout) as scope:
                 answer = await handler(dispatch)
         except Exception as err:  # noqa: BLE001 - a handler's bug fails its action only
+            elapsed = time.monotonic() - t0
+            if timeout is not None and elapsed > timeout:
+                return self._late(where, timeout, elapsed, dispatch, f"raised {type(err).__name__}")
             log.warning("%s raised %s: %s", where, type(err).__name__, err)
             return self._timed(
                 Result(Status.FAILED, f"{where} raised {type(err).__name__}: {err}"), dispatch
             )
+        finally:
+            self.running.pop(dispatch.id, None)
+        elapsed = time.monotonic() - t0
         if scope.cancelled_caught:
             log.warning("%s did not answer within %g s", where, timeout)
             return self._timed(
-                Result(Status.FAILED, f"{where} did not answer within {timeout:g} s (timeout)"),
+                Result(Status.TIMED_OUT, f"{where} did not answer within {timeout:g} s (timeout)"),
                 dispatch,
             )
+        if timeout is not None and elapsed > timeout:
+            # it answered, but after its deadline: it blocked the event loop
+            # or shielded itself from the cancellation
+            return self._late(where, timeout, elapsed, dispatch, "answered")
         return self._timed(as_result(answer, where), dispatch)
+
+    def _late(
+        self, where: str, timeout: float, elapsed: float, dispatch: Dispatch, what: str
+    ) -> Result:
+        log.warning(
+            "%s %s after %.2f s, past its %g s timeout (it blocked the event loop or "
+            "shielded itself from cancellation): timed out",
+            where,
+            what,
+            elapsed,
+            timeout,
+        )
+        return self._timed(
+            Result(
+                Status.TIMED_OUT,
+                f"{where} {what} after {elapsed:.2f} s, past its {timeout:g} s timeout "
+                "(it blocked or shielded itself; see run_blocking) (timeout)",
+            ),
+            dispatch,
+        )
 
     def _timed(self, result: Result, dispatch: Dispatch) -> Result:
         if result.duration is not None:
@@ -207,3 +260,33 @@ class Handlers:
             max(0.0, self.clock.now() - dispatch.started),
             result.data,
         )
+
+
+#: Threads `run_blocking` may run at once; a driver call that hangs keeps its
+#: thread (and its place here) until it returns, so a robot whose driver
+#: hangs again and again gets timeouts here, never an unbounded number of
+#: threads (and the planner's own threads are never starved).
+BLOCKING_THREADS = 8
+_blocking_limiter: trio.lowlevel.RunVar[trio.CapacityLimiter] = trio.lowlevel.RunVar(
+    "ippc_dispatch_blocking"
+)
+
+
+async def run_blocking(fn: Callable[..., Any], *args: Any) -> Any:
+    """Run the blocking call `fn(*args)` in a thread and return what it
+    returns (or raise what it raises), without blocking the event loop.
+
+    Inside a handler it runs under the action's timeout: at the deadline
+    the handler is cancelled and the thread is *abandoned*: Python cannot
+    stop a thread, so the call goes on in the background until it returns
+    and its result is dropped. Give the driver call its own timeout too
+    when it has one. At most `BLOCKING_THREADS` such calls run at once
+    (more wait for a place, within their action's timeout)."""
+    try:
+        limiter = _blocking_limiter.get()
+    except LookupError:  # the first call in this trio run
+        limiter = trio.CapacityLimiter(BLOCKING_THREADS)
+        _blocking_limiter.set(limiter)
+    return await trio.to_thread.run_sync(
+        lambda: fn(*args), abandon_on_cancel=True, limiter=limiter
+    )

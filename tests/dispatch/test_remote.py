@@ -149,7 +149,7 @@ async def test_a_remote_handler_that_never_answers_times_out() -> None:
     report = await play(robot_controller(ignore_first=True), action_timeout=0.3)
     assert report.goal_reached
     first = report.executed[0]
-    assert first["outcome"] == "failed" and "(timeout)" in first["message"]
+    assert first["outcome"] == "timed-out" and "(timeout)" in first["message"]
     assert report.failed_actions == 1
 
 

@@ -101,7 +101,7 @@ def test_a_hanging_handler_fails_its_action_and_the_loop_goes_on(tmp_path: Path)
     report, kb = run_robot(tmp_path / "h.db", hang_once=True)
     assert report.goal_reached
     first = report.executed[0]
-    assert (first["action"], first["outcome"]) == ("move(r1,hall,office)", "failed")
+    assert (first["action"], first["outcome"]) == ("move(r1,hall,office)", "timed-out")
     assert first["message"] == (
         "the handler of move(r1,hall,office) did not answer within 0.5 s (timeout)"
     )
