@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import logging
+import signal
 import sys
 from pathlib import Path
 from typing import Any
@@ -21,6 +22,7 @@ from .config import SensingConfig, SensingConfigError
 from .dispatcher import DispatcherError
 from .run import (
     DEFAULT_ROUNDS,
+    LinkPolicy,
     ListenError,
     PlannerSpec,
     RobotFileError,
@@ -29,6 +31,7 @@ from .run import (
     dispatch_session,
     executed_plan,
     server_config,
+    signal_exit_code,
 )
 from .run import simulate as simulate_run
 
@@ -116,6 +119,30 @@ def print_report(report: RunReport) -> None:
 )
 @click.option("--no-stop-at-goal", is_flag=True, help="Play every round to its horizon.")
 @click.option(
+    "--on-planner-loss",
+    type=click.Choice(["wait", "exit"]),
+    default="wait",
+    show_default=True,
+    help="A dropped session: wait for a planner to connect again (and restart --planner/--prost), or end the run.",
+)
+@click.option(
+    "--planner-silence",
+    type=float,
+    default=None,
+    help="Seconds the planner may stay silent before its session is dropped [default: the --timeout budget; 0 = no limit].",
+)
+@click.option(
+    "--watchdog",
+    default=1.0,
+    show_default=True,
+    help="Warn, naming the handler, when the event loop is blocked this many seconds; 0 = off.",
+)
+@click.option(
+    "--fresh",
+    is_flag=True,
+    help="Start from the instance's initial state, not from the facts journaled in --db.",
+)
+@click.option(
     "--db",
     type=click.Path(dir_okay=False, path_type=Path),
     help="SQLite result store (every turn, with outcomes).",
@@ -157,6 +184,10 @@ def main(
     action_timeout: float,
     kb_port: int | None,
     no_stop_at_goal: bool,
+    on_planner_loss: str,
+    planner_silence: float | None,
+    watchdog: float,
+    fresh: bool,
     db: Path | None,
     json_out: Path | None,
     plan_of: Path | None,
@@ -179,6 +210,10 @@ def main(
         raise click.BadParameter("give --planner or --prost, not both", param_hint="--prost")
     if rounds < 1:
         raise click.BadParameter("must be at least 1", param_hint="--rounds")
+    if planner_silence is not None and planner_silence < 0:
+        raise click.BadParameter("must be at least 0", param_hint="--planner-silence")
+    if watchdog < 0:
+        raise click.BadParameter("must be at least 0", param_hint="--watchdog")
     spec: PlannerSpec | None = None
     if planner is not None or prost_bin is not None:
         spec = PlannerSpec(
@@ -211,6 +246,7 @@ def main(
                 timeout=timeout,
                 action_timeout=action_timeout,
                 stop_at_goal=not no_stop_at_goal,
+                handle_signals=True,
             )
         except (RDDLError, KBError) as err:
             raise click.ClickException(str(err)) from None
@@ -231,10 +267,16 @@ def main(
             stop_at_goal=not no_stop_at_goal,
             db=db,
             kb_port=kb_port,
+            link=LinkPolicy(reconnect=on_planner_loss == "wait", silence=planner_silence),
+            watchdog=watchdog or None,
+            resume=not fresh,
         )
     print_report(report)
     if json_out is not None:
         json_out.write_text(json.dumps(report.as_dict(), indent=2) + "\n")
+    if report.interrupted is not None:
+        click.echo(f"rddl-dispatch: interrupted by {report.interrupted}", err=True)
+        raise SystemExit(signal_exit_code(signal.Signals[report.interrupted]))
     if report.session_status in (None, "dropped"):
         # the report is printed either way; the status says the session did not play out
         why = "no session was played" if report.session_status is None else "the session dropped"
@@ -316,6 +358,11 @@ def _robot(
                 robot=robot,
                 kb_port=opts["kb_port"],
                 on_kb_listening=kb_listening,
+                link=opts["link"],
+                watchdog=opts["watchdog"],
+                handle_signals=True,
+                journal=True,
+                resume=opts["resume"],
             )
         )
     except BaseException as exc:  # trio hands some errors over in exception groups

@@ -41,6 +41,7 @@ from __future__ import annotations
 
 import logging
 import time
+from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -163,6 +164,12 @@ class ExecutedAction:
         return d
 
 
+#: Dispatched actions a dispatcher keeps for its report (the last ones); the
+#: result store has every one. A dispatcher that runs for a shift must not
+#: grow with the number of turns it played.
+EXECUTED_KEPT = 1000
+
+
 @dataclass
 class DispatchStats:
     """What the dispatcher did over its life (all sessions)."""
@@ -175,16 +182,25 @@ class DispatchStats:
     goal_reached: bool = False
     replans: int = 0  # turns planned after an action that did not succeed
     contradictions: int = 0  # sensed values that contradicted what the model knew
-    executed: list[ExecutedAction] = field(default_factory=list)
+    #: the last `EXECUTED_KEPT` dispatched actions
+    executed: deque[ExecutedAction] = field(default_factory=lambda: deque(maxlen=EXECUTED_KEPT))
+    executed_total: int = 0  # every dispatched action
+    failed_actions: int = 0  # of them, those that did not succeed
+    _cost: float = 0.0
+    _costed: int = 0
 
-    @property
-    def failed_actions(self) -> int:
-        return sum(1 for a in self.executed if a.outcome != Status.SUCCEEDED.value)
+    def record(self, action: ExecutedAction) -> None:
+        self.executed.append(action)
+        self.executed_total += 1
+        if action.outcome != Status.SUCCEEDED.value:
+            self.failed_actions += 1
+        if action.cost is not None:
+            self._cost += action.cost
+            self._costed += 1
 
     @property
     def cost(self) -> float | None:
-        costs = [a.cost for a in self.executed if a.cost is not None]
-        return sum(costs) if costs else None
+        return self._cost if self._costed else None
 
 
 class Dispatcher(Environment):
@@ -406,7 +422,7 @@ class DispatchEpisode(Episode):
                 float(r.duration or 0.0),
                 r.cost,
             )
-            stats.executed.append(entry)
+            stats.record(entry)
             executed.append(entry.as_dict())
         goal = d.kb.goal_holds()
         record: dict[str, Any] = {

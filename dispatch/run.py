@@ -14,8 +14,10 @@ simulated world (`ippc.dispatch.world`), callable from Python as from
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import logging
+import signal
 import time
 from collections.abc import Awaitable, Callable, Mapping
 from dataclasses import dataclass, field
@@ -28,18 +30,28 @@ from ..kb import KnowledgeBase
 from ..kb.jsonl import JsonlServer
 from ..kb.service import register_kb
 from ..planners.base import ExternalPlanner, Planner, PlannerError, make_planner
-from ..server.app import serve
+from ..server.app import close_services, open_services, play_connection, serve
 from ..server.config import ServerConfig
 from ..server.session import Services
 from .actions import Handlers
 from .clock import Clock, WallClock
 from .config import SensingConfig
 from .dispatcher import Dispatcher
+from .journal import KBJournal
 from .remote import register_dispatch
 from .sensing import Sensing
+from .watchdog import LoopWatchdog
 from .world import PerAction, SimulatedWorld
 
-__all__ = ["PlannerSpec", "RunReport", "dispatch_session", "serve_dispatcher", "simulate"]
+__all__ = [
+    "LinkPolicy",
+    "PlannerSpec",
+    "RunReport",
+    "dispatch_session",
+    "serve_dispatcher",
+    "signal_exit_code",
+    "simulate",
+]
 
 log = logging.getLogger(__name__)
 
@@ -85,6 +97,12 @@ class RunReport:
     wall_seconds: float = 0.0
     planner_error: str | None = None
     dispatcher_reward: float = 0.0
+    sessions: list[str] = field(default_factory=list)  # each session's status, in order
+    planner_restarts: int = 0
+    interrupted: str | None = None  # the signal that ended the run
+    facts: list[list[Any]] = field(default_factory=list)  # the final knowledge, not-false
+    journaled: int | None = None  # batches journaled in the result store
+    executed_total: int | None = None  # actions over the run (`executed` keeps the last ones)
 
     @property
     def success(self) -> bool:
@@ -110,6 +128,14 @@ class RunReport:
             "session_status": self.session_status,
             "wall_seconds": self.wall_seconds,
             "planner_error": self.planner_error,
+            "sessions": self.sessions,
+            "planner_restarts": self.planner_restarts,
+            "interrupted": self.interrupted,
+            "journaled": self.journaled,
+            "executed_total": self.executed_total
+            if self.executed_total is not None
+            else len(self.executed),
+            "facts": self.facts,
         }
 
     def plan_lines(self) -> list[str]:
@@ -146,12 +172,14 @@ def server_config(
 async def serve_dispatcher(
     dispatcher: Dispatcher,
     config: ServerConfig,
+    services: Services | None = None,
     *,
     task_status: trio.TaskStatus[int] = trio.TASK_STATUS_IGNORED,
 ) -> Services:
     """Serve `dispatcher` until cancelled (or, with `individual_session`,
-    until its one session ends); reports the bound port once listening."""
-    return await serve(config, dispatcher, task_status=task_status)
+    until its one session ends); reports the bound port once listening.
+    `services` (the result store) are the caller's and stay open."""
+    return await serve(config, dispatcher, task_status=task_status, services=services)
 
 
 async def run_planner(
@@ -191,7 +219,9 @@ async def run_planner(
             return result.error
 
         try:
-            return await trio.to_thread.run_sync(play_external, abandon_on_cancel=False)
+            # cancelled (its session dropped, the run ends): the program is
+            # stopped at once (below), and its thread ends with it
+            return await trio.to_thread.run_sync(play_external, abandon_on_cancel=True)
         finally:
             external.cancel()
     from ..client.session import ClientConfig, ClientError, run_session
@@ -220,7 +250,66 @@ async def run_planner(
             return str(err)
         return None
 
-    return await trio.to_thread.run_sync(play_builtin, abandon_on_cancel=False)
+    # cancelled: the thread is left to end by itself (its connection is
+    # closed by then, so its client stops at its next receive)
+    return await trio.to_thread.run_sync(play_builtin, abandon_on_cancel=True)
+
+
+@dataclass(frozen=True)
+class LinkPolicy:
+    """What the dispatcher does about its planner link.
+
+    `silence`: seconds the planner may stay silent while the dispatcher
+    waits for its message (a deadline on each receive, so a hung planner is
+    detected while it hangs); None: the session budget when there is one
+    (`ServerConfig.timeout`), else no limit; 0: no limit. `reconnect`: a
+    dropped session (the planner hung up, died, went silent, or sent what
+    cannot be read) is recorded `dropped` and the dispatcher waits for a
+    planner to connect again, going on from the knowledge base as it is;
+    False: the run ends there (its report says so). A planner the
+    dispatcher started (`--planner`, `--prost`) is started again after
+    `restart_delay` seconds, doubling up to `max_restart_delay` while
+    attempts keep failing without playing a turn."""
+
+    reconnect: bool = False
+    silence: float | None = None
+    restart_delay: float = 1.0
+    max_restart_delay: float = 30.0
+
+    def idle_timeout(self, config: ServerConfig) -> float | None:
+        if self.silence is not None:
+            return self.silence if self.silence > 0 else None
+        return config.timeout if config.timeout > 0 else config.idle_timeout
+
+
+#: Exit status of rddl-dispatch ended by a signal: 128 + the signal's number,
+#: as a shell reports it (130 for SIGINT, 143 for SIGTERM).
+def signal_exit_code(signum: int) -> int:
+    return 128 + signum
+
+
+class _Run:
+    """The state one `dispatch_session` shares between its tasks."""
+
+    def __init__(self) -> None:
+        self.over = False  # no further session: the run ends
+        self.statuses: list[str] = []  # each session's final status, in order
+        self.planner_errors: list[str] = []
+        self.last_error: str | None = None  # of the last planner attempt
+        self.restarts = 0
+        self.interrupted: str | None = None  # the signal's name
+        self.ended = trio.Event()  # set after each session; replaced by the next
+        self.attempt: trio.CancelScope | None = None  # the planner attempt in progress
+        self.turns_at_attempt = 0
+
+        self.planner_done = trio.Event()
+
+    def session_over(self, status: str | None) -> None:
+        """A session ended with `status` (None: the run ends without one)."""
+        if status is not None:
+            self.statuses.append(status)
+        ended, self.ended = self.ended, trio.Event()
+        ended.set()
 
 
 async def dispatch_session(
@@ -235,87 +324,112 @@ async def dispatch_session(
     robot: Robot | None = None,
     kb_port: int | None = None,
     on_kb_listening: Callable[[int], None] | None = None,
+    link: LinkPolicy | None = None,
+    watchdog: float | None = None,
+    handle_signals: bool = False,
+    journal: bool = False,
+    resume: bool = True,
 ) -> RunReport:
     """Serve `dispatcher`, start the planner once it listens (none: wait
-    for one to connect), play one session, and report. `sensing_task` runs
-    the dispatcher's sensing batches at their rate meanwhile (a robot; the
-    simulated world needs none); `robot`'s tasks (sensor sources) run
-    meanwhile too. With `kb_port`, the knowledge base's JSON-lines socket
-    (the `kb.*` methods and the dispatcher's `sensing.*` and `handlers.*`,
-    see `ippc.dispatch.remote`) is served on that port (0: any free one,
-    reported through `on_kb_listening`) before the planner starts."""
+    for one to connect), play until a session ends (with `link.reconnect`,
+    a dropped session is followed by the next one), and report.
+    `sensing_task` runs the dispatcher's sensing batches at their rate
+    meanwhile (a robot; the simulated world needs none); `robot`'s tasks
+    (sensor sources) run meanwhile too. With `kb_port`, the knowledge base's
+    JSON-lines socket (the `kb.*` methods and the dispatcher's `sensing.*`
+    and `handlers.*`, see `ippc.dispatch.remote`) is served on that port
+    (0: any free one, reported through `on_kb_listening`) before the
+    planner starts. `watchdog`: seconds the event loop may stay blocked
+    before a warning names the handler (None: no watchdog). With
+    `handle_signals`, SIGINT and SIGTERM cancel the current action, close
+    the session as `interrupted` and return the report (its `interrupted`
+    names the signal). With `journal` and a result store (`config.db`),
+    every batch applied to the knowledge base is journaled there and, with
+    `resume`, the facts journaled for this instance are restored first."""
     started = time.perf_counter()
-    error: list[str | None] = [None]
-    services: list[Services] = []
-    async with trio.open_nursery() as nursery:
-        if sensing_task and dispatcher.sensing is not None:
-            await nursery.start(dispatcher.sensing.run)
-        if robot is not None:
-            for fn, args in robot.tasks:
-                nursery.start_soon(_logged_task, fn, args)
-        if kb_port is not None:
-            socket = JsonlServer("rddl-dispatch")
-            register_kb(socket, dispatcher.kb)
-            register_dispatch(
-                socket,
-                dispatcher.handlers,
-                dispatcher.sensing,
-                [p.name for p in dispatcher.sim.action_fluents],
-            )
+    link = link or LinkPolicy()
+    config = dataclasses.replace(config, individual_session=True, idle_timeout=link.idle_timeout(config))
+    run = _Run()
+    svc = open_services(config, dispatcher, config.port)
+    kb_journal: KBJournal | None = None
+    if journal and svc.store is not None:
+        kb_journal = KBJournal(dispatcher.kb, svc.store, dispatcher.name)
+        if resume:
+            kb_journal.restore()
+        kb_journal.start()
+    try:
+        async with trio.open_nursery() as nursery:
+            if handle_signals:
+                nursery.start_soon(_watch_signals, run, nursery.cancel_scope)
+            if watchdog is not None and watchdog > 0:
+                handlers = dispatcher.handlers
+                dog = LoopWatchdog(watchdog, lambda: ", ".join(list(handlers.running.values())))
+                await nursery.start(dog.run)
+            if sensing_task and dispatcher.sensing is not None:
+                await nursery.start(dispatcher.sensing.run)
+            if robot is not None:
+                for fn, args in robot.tasks:
+                    nursery.start_soon(_logged_task, fn, args)
+            if kb_port is not None:
+                socket = JsonlServer("rddl-dispatch")
+                register_kb(socket, dispatcher.kb)
+                register_dispatch(
+                    socket,
+                    dispatcher.handlers,
+                    dispatcher.sensing,
+                    [p.name for p in dispatcher.sim.action_fluents],
+                )
+                try:
+                    bound = await nursery.start(socket.serve, config.host, kb_port)
+                except OSError as err:
+                    raise ListenError(
+                        "the knowledge base's socket, --kb-port", f"{config.host}:{kb_port}", err
+                    ) from None
+                if on_kb_listening is not None:
+                    on_kb_listening(bound)
             try:
-                bound = await nursery.start(socket.serve, config.host, kb_port)
+                port = await nursery.start(_sessions, dispatcher, config, svc, link, run)
             except OSError as err:
                 raise ListenError(
-                    "the knowledge base's socket, --kb-port", f"{config.host}:{kb_port}", err
+                    "the planner's socket, --port", f"{config.host}:{config.port}", err
                 ) from None
-            if on_kb_listening is not None:
-                on_kb_listening(bound)
-
-        async def server(task_status: trio.TaskStatus[int] = trio.TASK_STATUS_IGNORED) -> None:
-            services.append(await serve_dispatcher(dispatcher, config, task_status=task_status))
-            nursery.cancel_scope.cancel()  # the one session is over
-
-        try:
-            port = await nursery.start(server)
-        except OSError as err:
-            raise ListenError(
-                "the planner's socket, --port", f"{config.host}:{config.port}", err
-            ) from None
-        if on_listening is not None:
-            on_listening(port)
-        if spec is None:
-            await trio.sleep_forever()
-
-        async def planner() -> None:
-            try:
-                error[0] = await run_planner(
+            if on_listening is not None:
+                on_listening(port)
+            if spec is not None:
+                nursery.start_soon(
+                    _planner_loop,
                     spec,
                     config.host,
                     port,
-                    dispatcher.name,
+                    dispatcher,
                     planner_timeout,
-                    in_loop=planner_in_loop,
+                    planner_in_loop,
+                    link,
+                    run,
                 )
-            except PlannerError as err:
-                error[0] = str(err)
-            except Exception as err:  # noqa: BLE001 - a planner's bug ends its session only
-                while isinstance(err, ExceptionGroup) and len(err.exceptions) == 1:
-                    err = err.exceptions[0]  # the planner's own error, not trio's wrapping
-                log.error("planner %s raised", spec.label, exc_info=True)
-                error[0] = f"the planner raised {type(err).__name__}: {err}"
-            if not services:
-                # the planner is done and no session is over: do not wait
-                # for a connection that will not come (grace for the session's end)
-                with trio.move_on_after(5.0):
-                    while not services:
-                        await trio.sleep(0.01)
-            nursery.cancel_scope.cancel()
 
-        nursery.start_soon(planner)
+            async def finish() -> None:
+                while not run.over:
+                    await run.ended.wait()
+                if spec is not None:
+                    # the planner hears of the end (session-end) and leaves
+                    with trio.move_on_after(5.0):
+                        await run.planner_done.wait()
+                nursery.cancel_scope.cancel()
+
+            nursery.start_soon(finish)
+    finally:
+        if kb_journal is not None:
+            kb_journal.stop()
+        reason = f"rddl-dispatch stopped ({run.interrupted})" if run.interrupted else "rddl-dispatch stopped"
+        close_services(svc, reason)
     stats = dispatcher.stats
-    status = services[0].last_status if services else None
-    if error[0] is not None:
-        log.warning("planner %s: %s", spec.label, error[0])
+    status = run.statuses[-1] if run.statuses else None
+    if run.interrupted is not None:
+        status = "interrupted"
+    error = run.last_error
+    if error is not None and spec is not None:
+        log.warning("planner %s: %s", spec.label, error)
     return RunReport(
         instance=dispatcher.name,
         planner=spec.label if spec is not None else "(connected)",
@@ -333,8 +447,160 @@ async def dispatch_session(
         contradictions=stats.contradictions,
         session_status=status,
         wall_seconds=time.perf_counter() - started,
-        planner_error=error[0],
+        planner_error=error,
+        sessions=list(run.statuses),
+        planner_restarts=run.restarts,
+        interrupted=run.interrupted,
+        facts=final_facts(dispatcher.kb),
+        journaled=kb_journal.batches if kb_journal is not None else None,
+        executed_total=stats.executed_total,
     )
+
+
+def final_facts(kb: KnowledgeBase) -> list[list[Any]]:
+    """The knowledge base's state fluents as the report lists them:
+    `[fluent, [args...], value]` for every grounding that is not false."""
+    return [
+        [fluent, list(args), value]
+        for (fluent, args), value in kb.facts().items()
+        if value is not False
+    ]
+
+
+async def _sessions(
+    dispatcher: Dispatcher,
+    config: ServerConfig,
+    svc: Services,
+    link: LinkPolicy,
+    run: _Run,
+    *,
+    task_status: trio.TaskStatus[int] = trio.TASK_STATUS_IGNORED,
+) -> None:
+    """Play one session after another, one at a time, on one listening
+    socket that stays open for the whole run: a planner that connects while
+    a session plays (a restarted one, while the dropped session is torn
+    down) waits in the backlog and is served next."""
+    listeners = await trio.open_tcp_listeners(config.port, host=config.host)
+    port = listeners[0].socket.getsockname()[1]
+    send, receive = trio.open_memory_channel[trio.SocketStream](0)
+
+    async def accept_loop(listener: trio.SocketListener) -> None:
+        async with listener:
+            while True:
+                try:
+                    stream = await listener.accept()
+                except OSError as err:  # e.g. too many open files: wait, go on
+                    log.error("accept failed: %s", err)
+                    await trio.sleep(0.1)
+                    continue
+                await send.send(stream)
+
+    async with trio.open_nursery() as nursery:
+        for listener in listeners:
+            nursery.start_soon(accept_loop, listener)
+        task_status.started(port)
+        while not run.over:
+            stream = await receive.receive()
+            session = await play_connection(svc, stream)
+            status = session.status if session.status != "open" else "dropped"
+            if status != "dropped" or not link.reconnect:
+                run.over = True
+            else:
+                log.warning(
+                    "the planner's session dropped: waiting for a planner to connect again on "
+                    "%s:%d (going on from the knowledge base as it is)",
+                    config.host,
+                    port,
+                )
+                if run.attempt is not None:
+                    run.attempt.cancel()  # a hung planner the dispatcher started: stop it
+            run.session_over(status)
+        nursery.cancel_scope.cancel()
+
+
+async def _planner_loop(
+    spec: PlannerSpec,
+    host: str,
+    port: int,
+    dispatcher: Dispatcher,
+    timeout: float | None,
+    in_loop: bool,
+    link: LinkPolicy,
+    run: _Run,
+) -> None:
+    """Run the planner; while the run goes on (its session dropped), start
+    it again after a delay."""
+    try:
+        await _play_planner(spec, host, port, dispatcher, timeout, in_loop, link, run)
+    finally:
+        run.planner_done.set()
+
+
+async def _play_planner(
+    spec: PlannerSpec,
+    host: str,
+    port: int,
+    dispatcher: Dispatcher,
+    timeout: float | None,
+    in_loop: bool,
+    link: LinkPolicy,
+    run: _Run,
+) -> None:
+    delay = link.restart_delay
+    while not run.over:
+        ended = run.ended
+        turns = dispatcher.stats.turns
+        error: str | None = None
+        with trio.CancelScope() as attempt:
+            run.attempt = attempt
+            try:
+                error = await run_planner(spec, host, port, dispatcher.name, timeout, in_loop=in_loop)
+            except PlannerError as err:
+                error = str(err)
+            except Exception as err:  # noqa: BLE001 - a planner's bug ends its session only
+                while isinstance(err, ExceptionGroup) and len(err.exceptions) == 1:
+                    err = err.exceptions[0]  # the planner's own error, not trio's wrapping
+                log.error("planner %s raised", spec.label, exc_info=True)
+                error = f"the planner raised {type(err).__name__}: {err}"
+        run.attempt = None
+        if attempt.cancelled_caught and error is None:
+            error = "stopped: its session dropped"
+        run.last_error = error
+        if error is not None:
+            run.planner_errors.append(error)
+        # the planner is done; its session ends with it (grace for the end)
+        with trio.move_on_after(5.0):
+            await ended.wait()
+        if not ended.is_set():
+            # no session ended: the planner never connected (or still plays)
+            if not link.reconnect:
+                run.over = True
+                run.session_over(None)
+                return
+        if run.over:
+            return
+        if dispatcher.stats.turns > turns:
+            delay = link.restart_delay  # it played: start again at once-ish
+        run.restarts += 1
+        log.warning(
+            "planner %s ended (%s): starting it again in %g s",
+            spec.label,
+            error or "its session dropped",
+            delay,
+        )
+        await trio.sleep(delay)
+        delay = min(delay * 2, link.max_restart_delay)
+
+
+async def _watch_signals(run: _Run, scope: trio.CancelScope) -> None:
+    with trio.open_signal_receiver(signal.SIGINT, signal.SIGTERM) as signals:
+        async for signum in signals:
+            name = signal.Signals(signum).name
+            log.warning("%s: cancelling the current action, closing the session as interrupted", name)
+            run.interrupted = name
+            run.over = True
+            scope.cancel()
+            return
 
 
 async def _logged_task(fn: Callable[..., Awaitable[Any]], args: tuple[Any, ...]) -> None:
@@ -546,6 +812,7 @@ async def simulate_async(
     transcripts: Path | None = None,
     planner_timeout: float | None = None,
     timeout: float = 0.0,
+    handle_signals: bool = False,
     **world: Any,
 ) -> RunReport:
     """`simulate`, inside a trio run. `timeout` is the session budget in
@@ -558,7 +825,12 @@ async def simulate_async(
     config = ServerConfig(**{**config.__dict__, "seed": seed})
     # simulated time: nothing needs to run while the planner thinks
     report = await dispatch_session(
-        dispatcher, spec, config, planner_timeout=planner_timeout, planner_in_loop=True
+        dispatcher,
+        spec,
+        config,
+        planner_timeout=planner_timeout,
+        planner_in_loop=True,
+        handle_signals=handle_signals,
     )
     report.reward = the_world.reward
     report.seed = seed

@@ -26,6 +26,12 @@ at the session that played it); the server never writes it. An older file is mig
 in place when it is opened (version 2's columns and the table are added; nothing else changes), so files written
 by an older ippc stay readable and older readers of the three tables are unaffected.
 
+Schema version 4 adds rddl-dispatch's knowledge-base journal: ``kb_batches`` (every batch
+of changes applied to a dispatcher's knowledge base: its source, when, and the changed
+groundings with their new values, JSON) and ``kb_facts`` (the latest value of every
+grounding any batch changed, per instance), from which a restarted rddl-dispatch on the
+same file resumes with the facts it had. Both are written in the same transaction.
+
 Several processes may open the same file (a busy timeout makes writers wait for each
 other). Each store tags the sessions it starts with an owner token, so that
 ``interrupt_open`` of one server does not close the live sessions of another.
@@ -63,8 +69,9 @@ log = logging.getLogger(__name__)
 
 #: Value of ``PRAGMA user_version`` for the schema below (1: sessions, rounds, steps;
 #: 2: ``outcome`` and ``execution_seconds`` in ``steps``, for rddl-dispatch; 3: rddl-batch's
-#: ``jobs``). An older file is upgraded in place when opened.
-SCHEMA_VERSION = 3
+#: ``jobs``; 4: rddl-dispatch's ``kb_batches`` and ``kb_facts``). An older file is upgraded in
+#: place when opened.
+SCHEMA_VERSION = 4
 
 #: Final statuses of a session (``open`` while it runs).
 SESSION_STATUSES = frozenset({"finished", "timeout", "dropped", "interrupted"})
@@ -152,6 +159,26 @@ CREATE TABLE IF NOT EXISTS jobs (
     UNIQUE (experiment, job_key)
 );
 CREATE INDEX IF NOT EXISTS jobs_by_status ON jobs(experiment, status);
+""",
+    4: """
+CREATE TABLE IF NOT EXISTS kb_batches (
+    id          INTEGER PRIMARY KEY,
+    instance    TEXT    NOT NULL,         -- the dispatcher's instance name
+    source      TEXT    NOT NULL,         -- who applied it: sensing, dispatcher, a client
+    applied_at  REAL    NOT NULL,         -- unix seconds
+    changes     TEXT    NOT NULL,         -- JSON [[fluent, [args...], new value], ...]
+    goal        TEXT                      -- a goal change: JSON, the goal's facts
+                                          -- (null: back to the domain's goal), else NULL
+);
+CREATE INDEX IF NOT EXISTS kb_batches_by_instance ON kb_batches(instance, id);
+CREATE TABLE IF NOT EXISTS kb_facts (
+    instance    TEXT    NOT NULL,
+    fluent      TEXT    NOT NULL,
+    args        TEXT    NOT NULL,         -- JSON [args...]
+    value       TEXT    NOT NULL,         -- JSON
+    batch_id    INTEGER NOT NULL REFERENCES kb_batches(id),
+    PRIMARY KEY (instance, fluent, args)
+);
 """,
 }
 
@@ -531,7 +558,85 @@ class ResultStore:
             raise KeyError(f"no row {row} in {table}")
         log.info("%s row %d already closed as %r; not changed to %r", table, row, found[0], status)
 
+    def record_kb_batch(
+        self,
+        instance: str,
+        source: str,
+        changes: list[tuple[str, tuple[str, ...], object]],
+        applied_at: float,
+        *,
+        goal: object = None,
+        goal_changed: bool = False,
+    ) -> int:
+        """Journal one batch applied to the knowledge base of `instance`: the changed
+        groundings with their new values (``(fluent, args, value)``), or, with
+        `goal_changed`, a change of its goal to `goal` (JSON-able; None: back to the
+        domain's own goal). The batch and the latest value of each grounding
+        (``kb_facts``) are written in one transaction, committed when this returns; the
+        batch's row id."""
+        with self._tx() as cur:
+            cur.execute(
+                "INSERT INTO kb_batches (instance, source, applied_at, changes, goal)"
+                " VALUES (?, ?, ?, ?, ?)",
+                (
+                    str(instance),
+                    str(source),
+                    _real(applied_at),
+                    encode_fluents(changes),
+                    _ENCODER.encode(goal) if goal_changed else None,
+                ),
+            )
+            batch = int(cur.lastrowid or 0)
+            cur.executemany(
+                "INSERT INTO kb_facts (instance, fluent, args, value, batch_id)"
+                " VALUES (?, ?, ?, ?, ?) ON CONFLICT (instance, fluent, args)"
+                " DO UPDATE SET value = excluded.value, batch_id = excluded.batch_id",
+                [
+                    (
+                        str(instance),
+                        str(fluent),
+                        _ENCODER.encode(list(args)),
+                        _ENCODER.encode(value),
+                        batch,
+                    )
+                    for fluent, args, value in changes
+                ],
+            )
+        return batch
+
     # ------------------------------------------------------------------ reading
+
+    def kb_facts(self, instance: str) -> list[Fluent]:
+        """The latest journaled value of every grounding of `instance`'s knowledge base
+        that a batch changed, as ``(fluent, args, value)``, in the order last changed."""
+        rows = self._rows(
+            "SELECT fluent, args, value FROM kb_facts WHERE instance = ? ORDER BY batch_id",
+            (str(instance),),
+        )
+        return [(r["fluent"], tuple(json.loads(r["args"])), json.loads(r["value"])) for r in rows]
+
+    def kb_goal(self, instance: str) -> tuple[bool, Any]:
+        """The last goal journaled for `instance`: ``(True, goal)`` (None: the domain's
+        own goal), or ``(False, None)`` when no goal change was journaled."""
+        rows = self._rows(
+            "SELECT goal FROM kb_batches WHERE instance = ? AND goal IS NOT NULL"
+            " ORDER BY id DESC LIMIT 1",
+            (str(instance),),
+        )
+        return (True, json.loads(rows[0]["goal"])) if rows else (False, None)
+
+    def kb_batches(self, instance: str, *, after: int = 0) -> list[dict[str, Any]]:
+        """The journaled batches of `instance` with an id above `after`, oldest first;
+        ``changes`` decoded to ``(fluent, args, value)`` tuples."""
+        rows = self._rows(
+            "SELECT * FROM kb_batches WHERE instance = ? AND id > ? ORDER BY id",
+            (str(instance), int(after)),
+        )
+        for r in rows:
+            r["changes"] = decode_fluents(r["changes"])
+            if r["goal"] is not None:
+                r["goal"] = json.loads(r["goal"])
+        return rows
 
     def _rows(self, sql: str, params: tuple[Any, ...] = ()) -> list[dict[str, Any]]:
         with self._lock:

@@ -461,7 +461,7 @@ def test_a_version_1_database_is_upgraded_in_place(tmp_path: Path) -> None:
         )
         assert store.steps(rid)[1]["outcome"] == {"goal": True}
     conn = sqlite3.connect(path)
-    assert conn.execute("PRAGMA user_version").fetchone()[0] == SCHEMA_VERSION == 3
+    assert conn.execute("PRAGMA user_version").fetchone()[0] == SCHEMA_VERSION == 4
     conn.close()
 
 
@@ -686,3 +686,38 @@ def test_a_file_that_is_not_sqlite_is_a_store_error_and_is_left_alone(tmp_path: 
     with pytest.raises(StoreError, match="^file is not a database$"):
         ResultStore(path)
     assert path.read_bytes() == b"my notes, not a database\n" * 10
+
+
+def test_the_knowledge_base_journal_keeps_the_latest_facts(tmp_path: Path) -> None:
+    path = tmp_path / "r.db"
+    with ResultStore(path) as store:
+        store.record_kb_batch("courier_one", "sensing", [("robot-at", ("r1", "hall"), False)], 1.0)
+        store.record_kb_batch(
+            "courier_one",
+            "dispatcher",
+            [("holding", ("r1",), True), ("robot-at", ("r1", "lab"), True)],
+            2.0,
+        )
+        store.record_kb_batch("other", "sensing", [("battery", (), 0.5)], 3.0)
+        store.record_kb_batch("courier_one", "sensing", [("holding", ("r1",), False)], 4.0)
+    with ResultStore(path) as store:  # a restarted process reads what the last one wrote
+        assert store.kb_facts("courier_one") == [
+            ("robot-at", ("r1", "hall"), False),
+            ("robot-at", ("r1", "lab"), True),
+            ("holding", ("r1",), False),
+        ]
+        assert store.kb_facts("other") == [("battery", (), 0.5)]
+        batches = store.kb_batches("courier_one")
+        assert [b["source"] for b in batches] == ["sensing", "dispatcher", "sensing"]
+        assert batches[1]["changes"] == [("holding", ("r1",), True), ("robot-at", ("r1", "lab"), True)]
+        assert store.kb_batches("courier_one", after=batches[1]["id"]) == batches[2:]
+    with ResultStore(path) as store:
+        assert store.kb_goal("courier_one") == (False, None)
+        store.record_kb_batch(
+            "courier_one", "api", [], 5.0, goal=[["delivered", [], True]], goal_changed=True
+        )
+        store.record_kb_batch("courier_one", "api", [], 6.0, goal=None, goal_changed=True)
+        assert store.kb_goal("courier_one") == (True, None)
+        store.record_kb_batch("courier_one", "sensing", [("holding", ("r1",), True)], 7.0)
+        assert store.kb_goal("courier_one") == (True, None)
+        assert store.kb_batches("courier_one")[-3]["goal"] == [["delivered", [], True]]
