@@ -388,3 +388,7 @@ def _print_plan(db: Path, session: int | None) -> None:
         if e.get("message"):
             line += f"  ({e['message']})"
         click.echo(line)
+
+
+if __name__ == "__main__":
+    main()

@@ -73,6 +73,9 @@ log = logging.getLogger(__name__)
 
 SOURCE = "dispatcher"
 
+#: The outcome recorded for an action cancelled because the dispatcher stopped.
+INTERRUPTED = "interrupted"
+
 
 class DispatcherError(ValueError):
     """An instance the dispatcher cannot serve (a partially observed one)."""
@@ -383,7 +386,23 @@ class DispatchEpisode(Episode):
             a: Result(Status.PRECONDITION_FALSE, why, duration=0.0) for a, why in refused.items()
         }
         if legal:
-            results.update(await self._dispatch(legal, started))
+            try:
+                results.update(await self._dispatch(legal, started))
+            except trio.Cancelled:
+                # the dispatcher is stopping (a signal): the actions in
+                # progress are cancelled, and the report says so
+                for a in legal:
+                    stats.record(
+                        ExecutedAction(
+                            self.round,
+                            self.turn_num,
+                            str(a),
+                            INTERRUPTED,
+                            "cancelled: the dispatcher was stopped while it ran",
+                            max(0.0, d.clock.now() - started),
+                        )
+                    )
+                raise
         elif Handlers.NOOP in d.handlers:
             # nothing runs this turn (no action, or every one refused): time passes
             # for the robot as on a noop turn (the simulated world steps)
