@@ -39,6 +39,7 @@ import logging
 import statistics
 import time
 from pathlib import Path
+from typing import ClassVar
 
 import trio
 
@@ -60,7 +61,7 @@ def dispatch_pass(planner: str, runs: int) -> tuple[float, int]:
 
 def server_pass(planner: str, runs: int) -> tuple[float, int]:
     from ippc.client.session import ClientConfig, run_session
-    from ippc.planners.base import Planner
+    from ippc.planners.base import Planner, make_planner
     from ippc.server.app import serve
     from ippc.server.config import ServerConfig
     from ippc.server.registry import Registry
@@ -249,8 +250,8 @@ def soak(turns: int, trace: bool, seed: int) -> None:
         """The courier's plan read off each turn's state (cheap, so that the
         dispatcher is what the soak measures), hanging up after `turns`."""
 
-        name = "courier-policy"
-        options: dict[str, str] = {}
+        name: ClassVar[str] = "courier-policy"
+        options: ClassVar[dict[str, str]] = {}
 
         def __init__(self, turns_left: int) -> None:
             super().__init__()

@@ -287,6 +287,4 @@ async def run_blocking(fn: Callable[..., Any], *args: Any) -> Any:
     except LookupError:  # the first call in this trio run
         limiter = trio.CapacityLimiter(BLOCKING_THREADS)
         _blocking_limiter.set(limiter)
-    return await trio.to_thread.run_sync(
-        lambda: fn(*args), abandon_on_cancel=True, limiter=limiter
-    )
+    return await trio.to_thread.run_sync(lambda: fn(*args), abandon_on_cancel=True, limiter=limiter)

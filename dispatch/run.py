@@ -348,7 +348,9 @@ async def dispatch_session(
     `resume`, the facts journaled for this instance are restored first."""
     started = time.perf_counter()
     link = link or LinkPolicy()
-    config = dataclasses.replace(config, individual_session=True, idle_timeout=link.idle_timeout(config))
+    config = dataclasses.replace(
+        config, individual_session=True, idle_timeout=link.idle_timeout(config)
+    )
     run = _Run()
     svc = open_services(config, dispatcher, config.port)
     kb_journal: KBJournal | None = None
@@ -421,7 +423,11 @@ async def dispatch_session(
     finally:
         if kb_journal is not None:
             kb_journal.stop()
-        reason = f"rddl-dispatch stopped ({run.interrupted})" if run.interrupted else "rddl-dispatch stopped"
+        reason = (
+            f"rddl-dispatch stopped ({run.interrupted})"
+            if run.interrupted
+            else "rddl-dispatch stopped"
+        )
         close_services(svc, reason)
     stats = dispatcher.stats
     status = run.statuses[-1] if run.statuses else None
@@ -554,7 +560,9 @@ async def _play_planner(
         with trio.CancelScope() as attempt:
             run.attempt = attempt
             try:
-                error = await run_planner(spec, host, port, dispatcher.name, timeout, in_loop=in_loop)
+                error = await run_planner(
+                    spec, host, port, dispatcher.name, timeout, in_loop=in_loop
+                )
             except PlannerError as err:
                 error = str(err)
             except Exception as err:  # noqa: BLE001 - a planner's bug ends its session only
@@ -596,7 +604,9 @@ async def _watch_signals(run: _Run, scope: trio.CancelScope) -> None:
     with trio.open_signal_receiver(signal.SIGINT, signal.SIGTERM) as signals:
         async for signum in signals:
             name = signal.Signals(signum).name
-            log.warning("%s: cancelling the current action, closing the session as interrupted", name)
+            log.warning(
+                "%s: cancelling the current action, closing the session as interrupted", name
+            )
             run.interrupted = name
             run.over = True
             scope.cancel()

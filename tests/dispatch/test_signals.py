@@ -17,7 +17,7 @@ from ippc.server.store import ResultStore
 
 from .conftest import DOMAIN, ONE
 
-ROBOT = '''
+ROBOT = """
 import trio
 from pathlib import Path
 
@@ -26,7 +26,7 @@ def setup(robot):
     async def hang(d):
         Path({marker!r}).write_text(str(d.action))
         await trio.sleep_forever()  # an action in progress when the signal comes
-'''
+"""
 
 
 @pytest.mark.alone

@@ -709,7 +709,10 @@ def test_the_knowledge_base_journal_keeps_the_latest_facts(tmp_path: Path) -> No
         assert store.kb_facts("other") == [("battery", (), 0.5)]
         batches = store.kb_batches("courier_one")
         assert [b["source"] for b in batches] == ["sensing", "dispatcher", "sensing"]
-        assert batches[1]["changes"] == [("holding", ("r1",), True), ("robot-at", ("r1", "lab"), True)]
+        assert batches[1]["changes"] == [
+            ("holding", ("r1",), True),
+            ("robot-at", ("r1", "lab"), True),
+        ]
         assert store.kb_batches("courier_one", after=batches[1]["id"]) == batches[2:]
     with ResultStore(path) as store:
         assert store.kb_goal("courier_one") == (False, None)
