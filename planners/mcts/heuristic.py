@@ -798,10 +798,10 @@ class _Interval:
             return self._distribution(e, scope, env)
         if isinstance(e, A.Discrete):
             codes: list[int] = []
-            for c in e.cases:
-                if not isinstance(c.label, (A.EnumLit, A.ObjectLit, A.PVar)):
+            for case in e.cases:
+                if not isinstance(case.label, (A.EnumLit, A.ObjectLit, A.PVar)):
                     raise _Unsupported("a Discrete label that is not a value")
-                codes.append(self._code_of(c.label.name, e.type))
+                codes.append(self._code_of(case.label.name, e.type))
             return self._point(min(codes), scope)[0], self._point(max(codes), scope)[0]
         if isinstance(e, A.DiscreteOver):
             n = 1
