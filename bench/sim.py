@@ -23,6 +23,16 @@ What it measures
                    restart from the initial state when an episode ends
                    (termination, or the instance's horizon).
     ratio          ours / pyRDDLGym steps per second (higher = we are faster).
+    scalar         single-state noop steps per second of ours through
+                   ``ScalarStep`` (``ippc.rddl.sim.scalar``: the transition
+                   as one Python function over scalars, for tree search),
+                   from the same initial state with the same restarts; it
+                   checks no constraints, so the single-state figure it is
+                   compared with is also timed with ``check=False``
+                   (``single nc``). "-" where the model has a construct the
+                   scalar step does not write.
+    scalar/single  scalar steps per second / our single-state (``check=False``)
+                   steps per second, in the same run.
     batched        states stepped per second by ours with ``--batch`` states
                    (default 1024) per noop step, states whose episode ended
                    restarted as above.
@@ -77,6 +87,7 @@ from typing import Any
 
 import numpy as np
 from ippc.rddl import load_pair
+from ippc.rddl.sim.scalar import ScalarStep, ScalarUnsupported
 from ippc.rddl.simulator import Simulator, State
 
 INSTANCES: list[tuple[str, int]] = [
@@ -147,6 +158,10 @@ class Row:
     ratio: float | None = None  # ours / theirs, single state
     batched_states_per_s: float | None = None
     batch_ratio: float | None = None  # batched / single, ours
+    unchecked_steps_per_s: float | None = None  # ours, single state, check=False
+    scalar_steps_per_s: float | None = None  # ScalarStep, single state
+    scalar_ratio: float | None = None  # scalar / unchecked single, ours
+    scalar_note: str | None = None  # why there is no scalar figure
     error_ours: str | None = None
     error_theirs: str | None = None
 
@@ -176,10 +191,11 @@ class OurRunner:
     """Our simulator stepping noops from the initial state, restarting
     states whose episode ended (termination or horizon)."""
 
-    def __init__(self, sim: Simulator, horizon: int, batch: int) -> None:
+    def __init__(self, sim: Simulator, horizon: int, batch: int, check: bool = True) -> None:
         self.sim = sim
         self.horizon = horizon
         self.batch = batch
+        self.check = check
         self.initial = sim.initial_state(batch)
         self.noop = sim.noop(batch)
         self.rng = np.random.default_rng(SEED)
@@ -187,16 +203,40 @@ class OurRunner:
         self.t = 0
 
     def run(self, steps: int) -> None:
-        sim, noop, rng, initial = self.sim, self.noop, self.rng, self.initial
+        sim, noop, rng, initial, check = self.sim, self.noop, self.rng, self.initial, self.check
         state, t = self.state, self.t
         for _ in range(steps):
-            out = sim.step(state, noop, rng)
+            out = sim.step(state, noop, rng, check)
             state = out.next_state
             t += 1
             if t >= self.horizon:
                 state, t = initial, 0
             elif out.done.any():
                 state = restart(state, out.done, initial)
+        self.state, self.t = state, t
+
+
+class ScalarRunner:
+    """`ScalarStep` stepping noops from the initial state, restarting as
+    `OurRunner` does."""
+
+    def __init__(self, sim: Simulator, horizon: int) -> None:
+        self.fast = ScalarStep(sim)
+        self.horizon = horizon
+        self.initial = self.fast.encode_state(sim.initial_state(1))
+        self.noop = self.fast.noop
+        self.rng = np.random.default_rng(SEED)
+        self.state = self.initial
+        self.t = 0
+
+    def run(self, steps: int) -> None:
+        step, noop, rng, initial = self.fast.step, self.noop, self.rng, self.initial
+        state, t = self.state, self.t
+        for _ in range(steps):
+            state, _, done = step(state, noop, rng)
+            t += 1
+            if t >= self.horizon or done:
+                state, t = initial, 0
         self.state, self.t = state, t
 
 
@@ -271,13 +311,21 @@ def measure(inst: Instance, steps: int, batch: int, repeat: int, warmup: int) ->
             ours.time("build", lambda: build_ours(inst))
             theirs.time("build", lambda: build_theirs(inst))
 
-        single = many = None
+        single = many = unchecked = scalar = None
+        scalar_timer = Timer()
         if built is not None:
             sim, horizon = built
             single = ours.setup(lambda: OurRunner(sim, horizon, 1))
             many = ours.setup(lambda: OurRunner(sim, horizon, batch))
+            unchecked = ours.setup(lambda: OurRunner(sim, horizon, 1, check=False))
             ours.setup(lambda: single.run(warmup) if single else None)
             ours.setup(lambda: many.run(max(1, warmup // 4)) if many else None)
+            ours.setup(lambda: unchecked.run(warmup) if unchecked else None)
+            try:
+                scalar = ScalarRunner(sim, horizon)
+            except ScalarUnsupported as exc:
+                scalar_timer.error = describe(exc)
+            scalar_timer.setup(lambda: scalar.run(warmup) if scalar else None)
         if env is not None:
             theirs.setup(lambda: env.reset(seed=SEED))
             theirs.setup(lambda: step_theirs(env, warmup))
@@ -288,6 +336,10 @@ def measure(inst: Instance, steps: int, batch: int, repeat: int, warmup: int) ->
                 theirs.time("single", lambda: step_theirs(env, steps))
             if many is not None:
                 ours.time("batched", lambda: many.run(steps))
+            if unchecked is not None:
+                ours.time("unchecked", lambda: unchecked.run(steps))
+            if scalar is not None:
+                scalar_timer.time("scalar", lambda: scalar.run(steps))
 
     row = Row(inst.name, error_ours=ours.error, error_theirs=theirs.error)
     if "build" in ours.best:
@@ -306,6 +358,13 @@ def measure(inst: Instance, steps: int, batch: int, repeat: int, warmup: int) ->
         row.ratio = row.steps_per_s_ours / row.steps_per_s_theirs
     if row.steps_per_s_ours and row.batched_states_per_s:
         row.batch_ratio = row.batched_states_per_s / row.steps_per_s_ours
+    if ours.error is None and "unchecked" in ours.best:
+        row.unchecked_steps_per_s = steps / ours.best["unchecked"]
+    if scalar_timer.error is None and "scalar" in scalar_timer.best:
+        row.scalar_steps_per_s = steps / scalar_timer.best["scalar"]
+    row.scalar_note = scalar_timer.error
+    if row.scalar_steps_per_s and row.unchecked_steps_per_s:
+        row.scalar_ratio = row.scalar_steps_per_s / row.unchecked_steps_per_s
     return row
 
 
@@ -349,7 +408,8 @@ def print_table(rows: list[Row], args: argparse.Namespace, elapsed: float) -> No
     print()
     head = (
         f"{'instance':34} {'build ms':>8} {'':>8} {'build':>6}  {'steps/s':>8} {'':>8}  "
-        f"{'ratio':>6} {'goal 1':>6}  {'batched':>10} {'batch/':>7} {'goal 2':>6}"
+        f"{'ratio':>6} {'goal 1':>6}  {'batched':>10} {'batch/':>7} {'goal 2':>6}  "
+        f"{'single nc':>9} {'scalar':>9} {'scalar/':>7}"
     )
     sub = (
         f"{'':34} {'ours':>8} {'theirs':>8} {'ratio':>6}  {'ours':>8} {'theirs':>8}  "
@@ -365,9 +425,13 @@ def print_table(rows: list[Row], args: argparse.Namespace, elapsed: float) -> No
             f"{fmt(r.steps_per_s_ours, '8.0f')} {fmt(r.steps_per_s_theirs, '8.0f')}  "
             f"{fmt(r.ratio, '6.2f')} {mark(r.ratio, GOAL_RATIO):>6}  "
             f"{fmt(r.batched_states_per_s, '10.0f')} {fmt(r.batch_ratio, '7.1f')} "
-            f"{mark(r.batch_ratio, GOAL_BATCH):>6}"
+            f"{mark(r.batch_ratio, GOAL_BATCH):>6}  "
+            f"{fmt(r.unchecked_steps_per_s, '9.0f')} {fmt(r.scalar_steps_per_s, '9.0f')} "
+            f"{fmt(r.scalar_ratio, '7.1f')}"
         )
         print(line.rstrip())
+        if r.scalar_note:
+            print(f"{'':36}no scalar step: {r.scalar_note}")
         if r.error_ours:
             print(f"{'':36}ours failed: {r.error_ours}")
         if r.error_theirs:
@@ -379,11 +443,16 @@ def print_table(rows: list[Row], args: argparse.Namespace, elapsed: float) -> No
         "  2. "
         + goal_line(rows, "batch_ratio", GOAL_BATCH, "batched states/s / our single-state steps/s")
     )
+    scalars = [r.scalar_ratio for r in rows if r.scalar_ratio is not None]
+    line4 = "  4. scalar / numpy single-state steps/s (check=False): printed (no goal)"
+    if scalars:
+        line4 += f"; from {min(scalars):.1f}x to {max(scalars):.1f}x on {len(scalars)}/{len(rows)}"
     builds = [r.build_ratio for r in rows if r.build_ratio is not None]
     line = "  3. build time, ours/pyRDDLGym: printed (no goal)"
     if builds:
         line += f"; from {min(builds):.2f}x to {max(builds):.2f}x (lower = we build faster)"
     print(line)
+    print(line4)
     print()
     print(f"run took {elapsed:.1f} s")
 

@@ -163,6 +163,8 @@ and what it may call):
     code           the function being written, and its peephole passes
     runtime        the helpers the generated code calls
     prestep        the one-state step cut in its action-free and action parts
+    scalar         the one-state step as one Python function over scalars
+                   (`ScalarStep`, for tree search; its own draws)
 
 `ippc.rddl.simulator` re-exports the public names.
 """
