@@ -60,7 +60,15 @@ __all__ = ["ScalarStep", "ScalarUnsupported"]
 
 
 class ScalarUnsupported(Exception):
-    """The model has a construct the scalar step does not write."""
+    """The model has a construct the scalar step does not write, or its
+    grounded function would be too long (`MAX_SOURCE`)."""
+
+
+# the longest grounded function written (characters), and the most terms
+# of one unrolled aggregation: beyond them writing and compiling the
+# function costs seconds, and the batched step does as well
+MAX_SOURCE = 400_000
+MAX_TERMS = 20_000
 
 
 def _div(x: float, y: float) -> float:
@@ -411,6 +419,9 @@ class _Writer:
             raise ScalarUnsupported(f"{e.loc}: {op}")
         names = [tv.name for tv in e.params]
         types = [tv.type for tv in e.params]
+        count = math.prod(len(self.members[t]) for t in types)
+        if count > MAX_TERMS:
+            raise ScalarUnsupported(f"{e.loc}: an aggregation of {count} terms")
         terms: list[_V] = []
         for combo in itertools.product(*(range(len(self.members[t])) for t in types)):
             inner = dict(env)
@@ -553,6 +564,7 @@ class _Writer:
         body: list[str] = []
         self.lines = body
         n_next = 0
+        size = 0
         next_names: list[str] = []
         for key in sim._cpf_order:
             p = model.pvariables[key.rstrip("'")]
@@ -568,7 +580,13 @@ class _Writer:
                 value = self.ev(cp.expr, env, p.range)
                 local = f"{prefix}{n_next}"
                 n_next += 1
-                body.append(f"    {local} = {self.cast(value, p.range)}")
+                line = f"    {local} = {self.cast(value, p.range)}"
+                body.append(line)
+                size += len(line)
+                if size > MAX_SOURCE:
+                    raise ScalarUnsupported(
+                        f"the grounded function is longer than {MAX_SOURCE} characters"
+                    )
                 names[idx] = local
             self.locals[(p.name, primed)] = names
             if p.kind not in (STATE, INTERM, DERIVED):
