@@ -32,8 +32,9 @@ fluents; constants, variables, object and enum literals; every operator;
 if and switch; sum, prod, avg, min, max, exists, forall; abs, sgn, exp,
 ln, sqrt, pow, floor, ceil, round, min, max, the trigonometric functions;
 Bernoulli, Normal, Discrete over listed cases, KronDelta, DiracDelta.
-Not written: enums whose values count as numbers (@1, @2...), fluent
-arguments computed at run time (`at(next(?x))`), argmin/argmax, the other
+Enums whose values are numbers (@1, @2...) count as those numbers in
+arithmetic, as in the batched step. Not written: fluent arguments computed
+at run time (`at(next(?x))`), argmin/argmax, the other
 distributions, matrix and vector constructs.
 
 Imports the model, the AST and `state`; reads the simulator's arrays and
@@ -196,10 +197,9 @@ class _Writer:
         self.sim = sim
         self.model = model
         c = sim._compiler
-        if c.numeric_of_code:
-            raise ScalarUnsupported(
-                "enum values that count as numbers: " + ", ".join(sorted(c.numeric_of_code))
-            )
+        # enums whose values count as numbers (@1, @2...): code -> number
+        self.numeric_of_code = {t: tuple(int(x) for x in v) for t, v in c.numeric_of_code.items()}
+        self.tables: dict[str, tuple[int, ...]] = {}
         if sim.observ_fluents:
             raise ScalarUnsupported("observations (a POMDP)")
         self.codes = c.codes
@@ -238,6 +238,18 @@ class _Writer:
         self.lines.append(f"    {name} = {v.code}")
         return _V(v.rtype, name)
 
+    def num(self, v: _V) -> _V:
+        """`v` as a number: an enum value whose values are numbers (@3) as
+        that number, as the batched step reads it in arithmetic."""
+        table = self.numeric_of_code.get(v.rtype)
+        if table is None:
+            return v
+        if v.known:
+            return _V("int", const=table[int(v.const)])
+        name = f"_N{list(self.numeric_of_code).index(v.rtype)}"
+        self.tables[name] = table
+        return _V("int", f"{name}[{v.code}]")
+
     def code_of(self, name: str, hint: str | None) -> tuple[int, str]:
         return self.sim._compiler.code_of(name, hint)  # type: ignore[no-any-return]
 
@@ -267,7 +279,7 @@ class _Writer:
         if isinstance(e, A.PVar):
             return self.pvar(e, env, hint)
         if isinstance(e, A.Unary):
-            x = self.ev(e.operand, env)
+            x = self.num(self.ev(e.operand, env))
             if e.op == "~":
                 return _V("bool", const=not x.const) if x.known else _V("bool", f"(not {x.code})")
             if e.op == "-":
@@ -277,7 +289,7 @@ class _Writer:
         if isinstance(e, A.Binary):
             return self.binary(e, env)
         if isinstance(e, A.If):
-            cond = self.ev(e.cond, env)
+            cond = self.num(self.ev(e.cond, env))
             if cond.known:
                 return self.ev(e.then if cond.const else e.else_, env, hint)
             yes = self.ev(e.then, env, hint)
@@ -332,8 +344,8 @@ class _Writer:
     def binary(self, e: A.Binary, env: Mapping[str, tuple[str, int]]) -> _V:
         op = e.op
         if op in ("^", "&", "|", "=>", "<=>"):
-            x = self.ev(e.left, env)
-            y = self.ev(e.right, env)
+            x = self.num(self.ev(e.left, env))
+            y = self.num(self.ev(e.right, env))
             if op in ("^", "&"):
                 if x.known:
                     return _as_bool(y) if x.const else _V("bool", const=False)
@@ -358,15 +370,20 @@ class _Writer:
         if op in ("==", "~="):
             x = self.ev(e.left, env)
             y = self.ev(e.right, env, x.rtype)
-            if x.rtype not in _NUMERIC and y.rtype in _NUMERIC and not y.known:
-                x = self.ev(e.left, env, y.rtype)
+            lt, rt = x.rtype, y.rtype
+            if (lt != rt and (lt in self.codes) != (rt in self.codes)) or (
+                lt in self.codes and rt in self.codes and lt != rt
+            ):
+                # mixed forms: compared as numbers where an enum is numeric
+                x = self.num(x)
+                y = self.num(self.ev(e.right, env))
             if x.known and y.known:
                 same = x.const == y.const
                 return _V("bool", const=same if op == "==" else not same)
             py = "==" if op == "==" else "!="
             return _V("bool", f"({x.text()} {py} {y.text()})")
-        x = self.ev(e.left, env)
-        y = self.ev(e.right, env)
+        x = self.num(self.ev(e.left, env))
+        y = self.num(self.ev(e.right, env))
         if op in ("<", "<=", ">", ">="):
             if x.known and y.known:
                 return _V("bool", const=bool(eval(f"{x.const!r} {op} {y.const!r}")))  # noqa: S307
@@ -427,7 +444,7 @@ class _Writer:
             inner = dict(env)
             for n, t, i in zip(names, types, combo, strict=True):
                 inner[n] = (t, i)
-            terms.append(self.ev(e.body, inner))
+            terms.append(self.num(self.ev(e.body, inner)))
         count = len(terms)
         if op in ("exists", "forall"):
             want = op == "exists"  # the value that decides
@@ -483,7 +500,7 @@ class _Writer:
         raise ScalarUnsupported(f"{e.loc}: aggregation {op}")
 
     def function(self, e: A.Function, env: Mapping[str, tuple[str, int]]) -> _V:
-        args = [self.ev(a, env) for a in e.args]
+        args = [self.num(self.ev(a, env)) for a in e.args]
         name = e.name
         if name in ("min", "max") and len(args) == 2:
             t = _num_type(args[0].rtype, args[1].rtype)
@@ -507,18 +524,18 @@ class _Writer:
         if name == "KronDelta":
             return self.ev(e.args[0], env, hint)
         if name == "DiracDelta":
-            x = self.ev(e.args[0], env)
+            x = self.num(self.ev(e.args[0], env))
             return _V("real", const=float(x.const)) if x.known else _V("real", f"float({x.code})")
         if name == "Bernoulli":
-            p = self.ev(e.args[0], env)
+            p = self.num(self.ev(e.args[0], env))
             if p.known and p.const in (0, 1):
                 return _V("bool", const=bool(p.const))
             k = self.n_uniforms
             self.n_uniforms += 1
             return _V("bool", f"(U[{k}] < {p.text()})")
         if name == "Normal":
-            m = self.ev(e.args[0], env)
-            v = self.ev(e.args[1], env)
+            m = self.num(self.ev(e.args[0], env))
+            v = self.num(self.ev(e.args[1], env))
             k = self.n_normals
             self.n_normals += 1
             return _V("real", f"({m.text()} + _sqrt({v.text()}) * Z[{k}])")
@@ -534,7 +551,7 @@ class _Writer:
             if code is None or case.prob is None:
                 raise ScalarUnsupported(f"{e.loc}: a Discrete case that is not a value")
             codes.append(code)
-            probs.append(self.ev(case.prob, env).text())
+            probs.append(self.num(self.ev(case.prob, env)).text())
         k = self.n_uniforms
         self.n_uniforms += 1
         table = "(" + ", ".join(map(str, codes)) + ",)"
@@ -598,7 +615,7 @@ class _Writer:
                 found = self.locals[(p.name, False)]
             next_names.extend(str(found[idx]) for idx in np.ndindex(*found.shape))
         if model.reward is not None:
-            reward = self.cast(self.ev(model.reward, {}), "real")
+            reward = self.cast(self.num(self.ev(model.reward, {})), "real")
         else:
             reward = "0.0"
         body.append(f"    r = {reward}")
@@ -609,7 +626,7 @@ class _Writer:
                 self.locals[(p.name, False)] = primed_names
         done = []
         for expr in sim._terminations:
-            v = self.ev(expr, {})
+            v = self.num(self.ev(expr, {}))
             done.append(v.text())
         body.append(f"    done = {' or '.join(f'bool({d})' for d in done) if done else 'False'}")
         head = ["def _scalar_step(S, A, rng):"]
@@ -656,6 +673,7 @@ class ScalarStep:
         self.action_keys = writer.action_keys
         self.draws = writer.n_uniforms + writer.n_normals
         ns: dict[str, Any] = dict(_HELPERS)
+        ns.update(writer.tables)
         code = compile(self.source, f"<rddl {sim.model.name}: _scalar_step>", "exec")
         exec(code, ns)  # noqa: S102
         self.step: Callable[
