@@ -301,4 +301,6 @@ def test_the_page_lists_every_module_in_one_way_layers() -> None:
                         f"{e.file}:{e.line} imports {files[e.target]}, which is not listed "
                         f"above {file} (line {line_of[file]} of {folder}/)"
                     )
-    assert not problems, f"docs/architecture.md, {SECTION!r}:\n" + "\n".join(problems)
+    assert not problems, f"docs/architecture.md, {SECTION!r}:\n" + "\n".join(
+        dict.fromkeys(problems)
+    )
