@@ -69,8 +69,7 @@ class _RawStreams:
         slots = (2 * size) // n
         if not 2 * size - 1 <= slots * n <= 2 * size:
             raise TypeError(f"random_raw({size}) is not a request for whole slots of {n} states")
-        per_state = (slots + 1) >> 1
-        raw = np.stack([f(per_state) for f in self.owner.raw])  # (n, per_state) outputs
+        raw = self.owner.take((slots + 1) >> 1)  # (n, per_state) outputs
         # (state, slot) -> (slot, state), the layout of the batched step
         flat = np.ascontiguousarray(raw.view(np.uint32)[:, :slots].T).reshape(-1)
         if flat.size & 1:
@@ -83,12 +82,53 @@ class PerStateGenerator:
     of `len(generators)` states: state b draws from `generators[b]` exactly
     what a batch of one would draw from it."""
 
-    def __init__(self, generators: Sequence[np.random.Generator]) -> None:
+    def __init__(self, generators: Sequence[np.random.Generator], ahead: int = 32) -> None:
         self.generators = list(generators)
-        self.raw = [g.bit_generator.random_raw for g in self.generators]
+        self._bitgens = [g.bit_generator for g in self.generators]
+        self._raw = [bg.random_raw for bg in self._bitgens]
+        # raw outputs are drawn for `ahead` steps at once (a call per
+        # generator per step costs more than the step), while the steps draw
+        # nothing else; PCG64 can be put back where the draws made so far
+        # leave it (`sync`)
+        self.ahead = ahead if all(type(bg) is np.random.PCG64 for bg in self._bitgens) else 0
+        self._buffer: np.ndarray | None = None
+        self._used = 0
+        self._saved: list[dict[str, Any]] = []
         self.bit_generator = _RawStreams(self)
 
+    def take(self, per_state: int) -> np.ndarray:
+        """The next `per_state` raw outputs of every generator, (n, per_state)."""
+        if not self.ahead:
+            return np.stack([f(per_state) for f in self._raw])
+        buffer = self._buffer
+        if buffer is None or self._used + per_state > buffer.shape[1]:
+            self.sync()
+            self._saved = [bg.state for bg in self._bitgens]
+            buffer = self._buffer = np.stack([f(per_state * self.ahead) for f in self._raw])
+        out = buffer[:, self._used : self._used + per_state]
+        self._used += per_state
+        return out
+
+    def sync(self) -> None:
+        """Put every generator where the draws taken so far leave it (the raw
+        outputs drawn ahead and not taken are given back). Called before
+        anything else draws from the generators."""
+        buffer, self._buffer = self._buffer, None
+        used, self._used = self._used, 0
+        if buffer is None or used == buffer.shape[1]:
+            return  # (every output drawn was taken: the generators are there)
+        for bg, saved in zip(self._bitgens, self._saved, strict=True):
+            bg.state = saved
+            if used:
+                bg.advance(used)
+                if saved["has_uint32"]:  # (advance drops a buffered 32-bit half)
+                    state = bg.state
+                    state["has_uint32"], state["uinteger"] = 1, saved["uinteger"]
+                    bg.state = state
+
     def standard_normal(self, size: Any = None) -> np.ndarray:
+        self.sync()
+        self.ahead = 0  # (the steps draw otherwise too: no drawing ahead)
         shape = _shape(size)
         n = len(self.generators)
         if not shape or shape[-1] != n:
@@ -103,6 +143,8 @@ class PerStateGenerator:
             raise AttributeError(f"PerStateGenerator has no per-state {name!r} draw")
 
         def draw(*args: Any) -> np.ndarray:
+            self.sync()
+            self.ahead = 0
             *params, size = args
             shape = _shape(size)
             n = len(self.generators)

@@ -108,6 +108,12 @@ class RDDLVectorEnv(VectorEnv[dict[str, Any], dict[str, Any], np.ndarray]):
             return codec.encode_one(self._observation, i)
         return codec.encode_one(self._state.values, i)
 
+    def _sync(self) -> None:
+        """Before a generator is used on its own: the outputs the batch's
+        streams drew ahead go back (see `streams.PerStateGenerator.sync`)."""
+        if self._all is not None:
+            self._all.sync()
+
     def _generator(self, i: int) -> np.random.Generator:
         g = self._generators[i]
         if g is None:
@@ -154,10 +160,12 @@ class RDDLVectorEnv(VectorEnv[dict[str, Any], dict[str, Any], np.ndarray]):
                 raise ValueError(
                     f"options['reset_mask'] must be a bool array of shape ({n},) with a True"
                 )
+        if any(seeds[i] is not None for i in np.flatnonzero(rows)):
+            self._sync()
+            self._all = None
         for i in np.flatnonzero(rows):
             if seeds[i] is not None:
                 self._generators[i], _ = seeding.np_random(seeds[i])
-                self._all = None
         if self.streams == "shared" and seed is None and self._np_random is None:
             self._np_random, self._np_random_seed = seeding.np_random(None)
         self._restart(rows)
@@ -198,6 +206,7 @@ class RDDLVectorEnv(VectorEnv[dict[str, Any], dict[str, Any], np.ndarray]):
                 noop = sim.noop(n)
                 arrays = {k: np.where(_rows(illegal, v), noop[k], v) for k, v in arrays.items()}
                 nondef = np.where(illegal, 0, nondef)
+                self._sync()
                 for i in np.flatnonzero(~inst.legal(self._state, arrays, nondef) & illegal):
                     # noop is illegal there too: a legal action drawn as an
                     # RDDLEnv draws it, from this environment's generator
@@ -257,8 +266,9 @@ class RDDLVectorEnv(VectorEnv[dict[str, Any], dict[str, Any], np.ndarray]):
                     )
                 rng = self._all
             else:
+                self._sync()
                 gens = [self._generator(int(i)) for i in idx]
-                rng = gens[0] if len(gens) == 1 else PerStateGenerator(gens)
+                rng = gens[0] if len(gens) == 1 else PerStateGenerator(gens, ahead=0)
         else:
             rng = self.np_random
         out = sim.step(state, acts, rng, check=self._inst.check_step)

@@ -169,3 +169,24 @@ def test_per_state_streams_draw_what_each_generator_draws_alone() -> None:
         batched.random((4, 3))
     with pytest.raises(AttributeError, match="no per-state 'integers'"):
         batched.integers  # noqa: B018
+
+
+def test_streams_drawn_ahead_are_given_back() -> None:
+    """Raw outputs drawn for several steps at once: after `sync` every generator is
+    where the outputs taken leave it, a buffered 32-bit half included."""
+    gens = [np.random.default_rng(s) for s in (1, 2)]
+    gens[0].integers(0, 9, dtype=np.int32)  # leaves half an output buffered
+    alone = [np.random.default_rng(s) for s in (1, 2)]
+    alone[0].integers(0, 9, dtype=np.int32)
+    batched = PerStateGenerator(gens, ahead=8)
+    for _ in range(3):
+        u = batched.bit_generator.random_raw(3).view(np.uint32)[:6].reshape(3, 2)
+        for b, g in enumerate(alone):
+            assert np.array_equal(u[:, b], g.bit_generator.random_raw(2).view(np.uint32)[:3])
+    batched.sync()
+    for g, h in zip(gens, alone, strict=True):
+        assert g.bit_generator.state == h.bit_generator.state
+        assert (
+            g.integers(0, 1000, 5, dtype=np.int32).tolist()
+            == h.integers(0, 1000, 5, dtype=np.int32).tolist()
+        )

@@ -1,0 +1,221 @@
+"""Speed of ippc.gym's environments on SysAdmin (IPPC 2011) instance 10.
+
+What it measures
+    single         steps per second of one ``RDDLEnv``: ``env.step(action)``
+                   with a Dict action rebooting one computer drawn at random
+                   (legal: max-nondef-actions is 1), ``env.reset()`` when the
+                   episode ends (the horizon, 40).
+    vector         states stepped per second by one ``RDDLVectorEnv`` of
+                   ``--envs`` environments (default 256): ``envs.step(action)``
+                   with a batched Dict action (one random reboot per
+                   environment), next-step autoreset, each state drawing from
+                   its own generator (``streams="per_state"``, the default,
+                   which makes environment i equal an RDDLEnv with the same
+                   seed); ``vector shared`` the same with one generator for
+                   the batch (``streams="shared"``).
+    pyRDDLGym      steps per second of pyRDDLGym's ``env.step(action)``
+                   (``pyRDDLGym.make("SysAdmin_MDP_ippc2011", "10")``, its
+                   defaults) with the same actions as ``single`` (the same
+                   grounded names), ``env.reset()`` when it says done.
+                   Skipped, with a message, when pyRDDLGym is not installed.
+
+    Goals (issue 22): vector / single >= 30, and single / pyRDDLGym >= 3.
+
+How
+    The actions are drawn once, before any timing, from
+    ``numpy.random.default_rng(0)``; the environments are seeded with
+    ``reset(seed=0)``. Each side gets ``--warmup`` untimed steps, then the
+    best of ``--repeat`` runs of ``--steps`` steps (vector: ``--steps`` //
+    8 batched steps), each timed as a whole with ``time.perf_counter`` and
+    continuing where the previous run stopped. The timed runs of the sides
+    alternate (single, vector, vector shared, pyRDDLGym, single, ...), so
+    that load from elsewhere on the machine falls on all of them alike;
+    ``gc.collect()`` runs before each, outside the timing. The load average
+    is printed with the figures.
+
+Usage
+    python bench/gym.py [--steps N] [--envs N] [--repeat R] [--warmup W] [--json]
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import gc
+import io
+import json
+import os
+import sys
+import time
+import warnings
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+from ippc.gym import RDDLEnv, RDDLVectorEnv
+
+PROBLEM, INSTANCE = "SysAdmin_MDP_ippc2011", "10"
+DEFAULT_STEPS = 4000
+DEFAULT_ENVS = 256
+DEFAULT_REPEAT = 5
+DEFAULT_WARMUP = 200
+GOAL_VECTOR = 30.0  # vector states per second / single steps per second
+GOAL_PEER = 3.0  # single steps per second / pyRDDLGym steps per second
+
+
+def single_runner(steps: int, seed: int) -> tuple[Callable[[int], int], list[str]]:
+    """A function running n steps of one RDDLEnv (returns the steps made), and
+    the action names."""
+    env = RDDLEnv(PROBLEM, INSTANCE)
+    names = list(env.action_space.spaces)
+    rng = np.random.default_rng(seed)
+    actions = [{names[int(k)]: 1} for k in rng.integers(0, len(names), steps)]
+    env.reset(seed=0)
+    where = [0]
+
+    def run(n: int) -> int:
+        for _ in range(n):
+            a = actions[where[0] % len(actions)]
+            where[0] += 1
+            _, _, terminated, truncated, _ = env.step(a)
+            if terminated or truncated:
+                env.reset()
+        return n
+
+    return run, names
+
+
+def vector_runner(
+    envs_n: int, batches: int, streams: str, names: list[str], seed: int
+) -> Callable[[int], int]:
+    """A function running n batched steps of an RDDLVectorEnv (returns the states stepped)."""
+    envs = RDDLVectorEnv(PROBLEM, INSTANCE, num_envs=envs_n, streams=streams)
+    rng = np.random.default_rng(seed)
+    actions = []
+    for _ in range(min(batches, 64)):
+        choice = rng.integers(0, len(names), envs_n)
+        actions.append({k: (choice == j).astype(np.int64) for j, k in enumerate(names)})
+    envs.reset(seed=0)
+    where = [0]
+
+    def run(n: int) -> int:
+        for _ in range(n):
+            envs.step(actions[where[0] % len(actions)])
+            where[0] += 1
+        return n * envs_n
+
+    return run
+
+
+def peer_runner(steps: int, names: list[str], seed: int) -> Callable[[int], int] | str:
+    """pyRDDLGym's env.step with the same actions, or why it cannot run."""
+    try:
+        import pyRDDLGym
+    except ImportError:
+        return "pyRDDLGym is not installed (pip install pyRDDLGym): the peer is skipped"
+    with (
+        contextlib.redirect_stdout(io.StringIO()),
+        contextlib.redirect_stderr(io.StringIO()),
+        warnings.catch_warnings(),
+    ):
+        warnings.simplefilter("ignore")
+        env = pyRDDLGym.make(PROBLEM, INSTANCE)
+    missing = set(names) - set(env.action_space.spaces)
+    if missing:
+        return f"pyRDDLGym names the actions otherwise ({sorted(missing)[:3]}): skipped"
+    rng = np.random.default_rng(seed)
+    actions = [{names[int(k)]: True} for k in rng.integers(0, len(names), steps)]
+    env.reset(seed=0)
+    where = [0]
+
+    def run(n: int) -> int:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            for _ in range(n):
+                a = actions[where[0] % len(actions)]
+                where[0] += 1
+                _, _, terminated, truncated, _ = env.step(a)
+                if terminated or truncated:
+                    env.reset()
+        return n
+
+    return run
+
+
+def best_rate(run: Callable[[int], int], n: int, times: list[float]) -> float:
+    """One timed run of n; appends its items per second to `times`; the best so far."""
+    gc.collect()
+    start = time.perf_counter()
+    items = run(n)
+    times.append(items / (time.perf_counter() - start))
+    return max(times)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--steps", type=int, default=DEFAULT_STEPS)
+    parser.add_argument("--envs", type=int, default=DEFAULT_ENVS)
+    parser.add_argument("--repeat", type=int, default=DEFAULT_REPEAT)
+    parser.add_argument("--warmup", type=int, default=DEFAULT_WARMUP)
+    parser.add_argument("--json", action="store_true", help="print the figures as JSON")
+    args = parser.parse_args(argv)
+
+    single, names = single_runner(args.steps, 0)
+    batches = max(1, args.steps // 8)
+    sides: dict[str, tuple[Callable[[int], int], int]] = {
+        "single": (single, args.steps),
+        "vector": (vector_runner(args.envs, batches, "per_state", names, 0), batches),
+        "vector shared": (vector_runner(args.envs, batches, "shared", names, 0), batches),
+    }
+    peer = peer_runner(args.steps, names, 0)
+    if isinstance(peer, str):
+        print(peer, file=sys.stderr)
+    else:
+        sides["pyRDDLGym"] = (peer, args.steps)
+    for run, n in sides.values():
+        run(max(1, args.warmup // (8 if n == batches else 1)))
+    gc.freeze()
+    load_before = os.getloadavg()[0]
+    rates: dict[str, list[float]] = {k: [] for k in sides}
+    for _ in range(args.repeat):
+        for name, (run, n) in sides.items():
+            best_rate(run, n, rates[name])
+    best = {k: max(v) for k, v in rates.items()}
+    figures: dict[str, Any] = {
+        "instance": f"{PROBLEM} #{INSTANCE}",
+        "envs": args.envs,
+        "steps_per_second": best,
+        "vector_over_single": best["vector"] / best["single"],
+        "shared_over_single": best["vector shared"] / best["single"],
+        "single_over_pyrddlgym": best["single"] / best["pyRDDLGym"]
+        if "pyRDDLGym" in best
+        else None,
+        "load_average": [round(load_before, 2), round(os.getloadavg()[0], 2)],
+    }
+    if args.json:
+        print(json.dumps(figures, indent=2))
+        return 0
+    print(f"{figures['instance']}, best of {args.repeat} runs, load average "
+          f"{figures['load_average'][0]} -> {figures['load_average'][1]}")  # fmt: skip
+    print(f"{'side':<16}{'per second':>14}")
+    for name, rate in best.items():
+        unit = f"states ({args.envs} envs)" if name.startswith("vector") else "steps"
+        print(f"{name:<16}{rate:>14.0f}  {unit}")
+
+    def verdict(value: float, goal: float) -> str:
+        return "PASS" if value >= goal else "FAIL"
+
+    r = figures["vector_over_single"]
+    print(f"vector / single        {r:7.1f}x  goal >= {GOAL_VECTOR:g}x  {verdict(r, GOAL_VECTOR)}")
+    r = figures["shared_over_single"]
+    print(f"vector shared / single {r:7.1f}x  goal >= {GOAL_VECTOR:g}x  {verdict(r, GOAL_VECTOR)}")
+    r = figures["single_over_pyrddlgym"]
+    if r is None:
+        print("single / pyRDDLGym     skipped (pyRDDLGym is not installed)")
+    else:
+        print(f"single / pyRDDLGym     {r:7.1f}x  goal >= {GOAL_PEER:g}x  {verdict(r, GOAL_PEER)}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
