@@ -59,6 +59,7 @@ bench: install
 	$(BIN)/python bench/server.py
 	$(BIN)/python bench/kb.py
 	$(BIN)/python bench/dispatch.py
+	$(BIN)/python bench/gym.py
 
 # The import packages: every top-level folder with an __init__.py but tests/.
 PACKAGES := $(sort $(patsubst %/__init__.py,%,$(filter-out tests/__init__.py,$(wildcard */__init__.py))))

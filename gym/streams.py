@@ -24,7 +24,7 @@ distributions the corpus uses.
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -103,7 +103,7 @@ class PerStateGenerator:
         buffer = self._buffer
         if buffer is None or self._used + per_state > buffer.shape[1]:
             self.sync()
-            self._saved = [bg.state for bg in self._bitgens]
+            self._saved = [dict(bg.state) for bg in self._bitgens]
             buffer = self._buffer = np.stack([f(per_state * self.ahead) for f in self._raw])
         out = buffer[:, self._used : self._used + per_state]
         self._used += per_state
@@ -120,9 +120,9 @@ class PerStateGenerator:
         for bg, saved in zip(self._bitgens, self._saved, strict=True):
             bg.state = saved
             if used:
-                bg.advance(used)
+                cast(np.random.PCG64, bg).advance(used)
                 if saved["has_uint32"]:  # (advance drops a buffered 32-bit half)
-                    state = bg.state
+                    state = dict(bg.state)
                     state["has_uint32"], state["uinteger"] = 1, saved["uinteger"]
                     bg.state = state
 

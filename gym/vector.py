@@ -7,7 +7,7 @@ Its environment i behaves exactly as an `RDDLEnv` reset with the same seed
 infos are those of a `SyncVectorEnv` over n `RDDLEnv`s, in each of Gymnasium's
 autoreset modes (`tests/gym/test_vector.py` compares the two). With
 `streams="per_state"` (the default) each state draws from its own generator
-(`streams.PerStateGenerator`); `streams="shared"` draws the whole batch from
+(`streams.PerStateGenerator`); `streams="batch"` draws the whole batch from
 one generator (seeded by `reset(seed=s)`), a little faster on large batches,
 reproducible, but no longer equal to single environments.
 """
@@ -29,7 +29,7 @@ from .streams import PerStateGenerator
 
 __all__ = ["STREAMS", "RDDLVectorEnv"]
 
-STREAMS = ("per_state", "shared")
+STREAMS = ("per_state", "batch")
 
 
 class RDDLVectorEnv(VectorEnv[dict[str, Any], dict[str, Any], np.ndarray]):
@@ -166,7 +166,7 @@ class RDDLVectorEnv(VectorEnv[dict[str, Any], dict[str, Any], np.ndarray]):
         for i in np.flatnonzero(rows):
             if seeds[i] is not None:
                 self._generators[i], _ = seeding.np_random(seeds[i])
-        if self.streams == "shared" and seed is None and self._np_random is None:
+        if self.streams == "batch" and seed is None and self._np_random is None:
             self._np_random, self._np_random_seed = seeding.np_random(None)
         self._restart(rows)
         self._done[rows] = False

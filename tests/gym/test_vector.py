@@ -90,7 +90,7 @@ def test_a_pomdp_batches_its_observations() -> None:
     compare(GYMTEST_POMDP, None, 4, 12, AutoresetMode.SAME_STEP)
 
 
-def test_shared_streams_are_seeded_but_not_single_envs() -> None:
+def test_one_stream_for_the_batch_is_seeded_but_not_single_envs() -> None:
     """The comparison can fail: one generator for the whole batch draws other values."""
     with pytest.raises(AssertionError, match="differs"):
         compare(
@@ -99,11 +99,11 @@ def test_shared_streams_are_seeded_but_not_single_envs() -> None:
             3,
             10,
             AutoresetMode.NEXT_STEP,
-            vector_kwargs={"streams": "shared"},
+            vector_kwargs={"streams": "batch"},
         )
 
     def rewards(seed: int) -> np.ndarray:
-        envs = RDDLVectorEnv("SysAdmin_MDP_ippc2011", "1", num_envs=8, streams="shared")
+        envs = RDDLVectorEnv("SysAdmin_MDP_ippc2011", "1", num_envs=8, streams="batch")
         envs.reset(seed=seed)
         return np.array([envs.step({})[1] for _ in range(10)])
 
