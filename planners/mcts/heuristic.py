@@ -582,19 +582,28 @@ class RewardLocks:
     def _same(a: dict[str, tuple[Array, Array]], b: dict[str, tuple[Array, Array]]) -> bool:
         return all(np.array_equal(a[k][0], b[k][0]) and np.array_equal(a[k][1], b[k][1]) for k in a)
 
-    def check(self, state: State) -> str | None:
+    def check(self, state: State, steps_left: int | None = None) -> str | None:
         """'dead end', 'goal' or None for one state (batch of one); the
-        answers are cached by the state's bytes."""
-        key = _row_bytes(state.values, 1).tobytes()
+        answers are cached by the state's bytes (and `steps_left`).
+
+        With `steps_left`, a lock for the rest of a finite horizon: the
+        reward cannot change within the next `steps_left` steps (a dead end
+        is then worth the minimum reward every step left, a goal the
+        maximum while noop is applied). The check then stops after that
+        many successors, which is all it costs near the horizon, and finds
+        more (a state that could leave the lock only later)."""
+        key = _row_bytes(state.values, 1).tobytes() + (
+            -1 if steps_left is None else steps_left
+        ).to_bytes(8, "little", signed=True)
         if key in self._cache:
             return self._cache[key]
-        found = self._check(state)
+        found = self._check(state, steps_left)
         if len(self._cache) >= self.max_cache:
             self._cache.clear()
         self._cache[key] = found
         return found
 
-    def _check(self, state: State) -> str | None:
+    def _check(self, state: State, steps_left: int | None) -> str | None:
         if (
             not self.supported
             or not math.isfinite(self.min_reward)
@@ -607,15 +616,23 @@ class RewardLocks:
             ks = self._kleene(state)
             _, (lo, hi) = self._eval.transition(ks, self._action(0))
             if lo == hi == self.min_reward:
-                return "dead end" if self._dead_end(ks) else None
+                return "dead end" if self._dead_end(ks, steps_left) else None
             if lo == hi == self.max_reward:
-                return "goal" if self._goal(ks) else None
+                return "goal" if self._goal(ks, steps_left) else None
         except _Unsupported as err:
             log.debug("reward locks: %s", err)
         return None
 
-    def _dead_end(self, ks: dict[str, tuple[Array, Array]]) -> bool:
-        for _ in range(self.max_iterations):
+    def _limit(self, steps_left: int | None) -> tuple[int, bool]:
+        """How many successors to check, and whether checking them all
+        without a change proves the lock (the horizon is within reach)."""
+        if steps_left is None or steps_left > self.max_iterations:
+            return self.max_iterations, False
+        return max(steps_left, 1), True
+
+    def _dead_end(self, ks: dict[str, tuple[Array, Array]], steps_left: int | None = None) -> bool:
+        limit, enough = self._limit(steps_left)
+        for _ in range(limit):
             merged = ks
             rows = range(self.n_actions) if self.per_action else [-1]
             for row in rows:
@@ -627,10 +644,11 @@ class RewardLocks:
             if self._same(merged, ks):
                 return True
             ks = merged
-        return False
+        return enough
 
-    def _goal(self, ks: dict[str, tuple[Array, Array]]) -> bool:
-        for _ in range(self.max_iterations):
+    def _goal(self, ks: dict[str, tuple[Array, Array]], steps_left: int | None = None) -> bool:
+        limit, enough = self._limit(steps_left)
+        for _ in range(limit):
             nxt, (lo, hi) = self._eval.transition(ks, self._action(0))
             if not (lo == hi == self.max_reward):
                 return False
@@ -638,7 +656,7 @@ class RewardLocks:
             if self._same(merged, ks):
                 return True
             ks = merged
-        return False
+        return enough
 
 
 _Iv = tuple[Array, Array]  # elementwise lower and upper bounds

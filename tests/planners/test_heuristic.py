@@ -291,6 +291,21 @@ def test_goal_and_spoiled_goal(tmp_path: Path) -> None:
     assert locks.check(s) == "dead end"
 
 
+def test_a_lock_for_the_steps_left(tmp_path: Path) -> None:
+    # not done yet: finish can make it done, but its reward shows a step
+    # later, so with one step left the reward is 0 whatever happens
+    model = model_of(tmp_path, GOAL, "goal_inst")
+    locks = RewardLocks(model, IDS.for_model(model).table)  # type: ignore[arg-type]
+    s = locks.sim.initial_state(1)
+    assert locks.check(s) is None
+    assert locks.check(s, steps_left=1) == "dead end"
+    assert locks.check(s, steps_left=2) is None
+    # the trap's alive state: its reward changes at once (risky pays 6)
+    trap = load(TINY / "trap.rddl")["tiny_trap_inst"]
+    trap_locks = RewardLocks(trap, IDS.for_model(trap).table)  # type: ignore[arg-type]
+    assert trap_locks.check(trap_locks.sim.initial_state(1), steps_left=1) is None
+
+
 def test_a_goal_left_by_noop_is_not_one(tmp_path: Path) -> None:
     text = GOAL.replace("done' = done | (finish ^ Bernoulli(0.5));", "done' = finish;")
     model = model_of(tmp_path, text, "goal_inst")
