@@ -64,6 +64,26 @@ GOAL_VECTOR = 30.0  # vector states per second / single steps per second
 GOAL_PEER = 3.0  # single steps per second / pyRDDLGym steps per second
 
 
+def episodes(env: Any, actions: list[dict[str, Any]]) -> Callable[[int], int]:
+    """A function running n steps of a Gymnasium env with the actions in turn
+    (reset when an episode ends; warnings silenced); returns the steps made."""
+    env.reset(seed=0)
+    where = [0]
+
+    def run(n: int) -> int:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            for _ in range(n):
+                a = actions[where[0] % len(actions)]
+                where[0] += 1
+                _, _, terminated, truncated, _ = env.step(a)
+                if terminated or truncated:
+                    env.reset()
+        return n
+
+    return run
+
+
 def single_runner(steps: int, seed: int) -> tuple[Callable[[int], int], list[str]]:
     """A function running n steps of one RDDLEnv (returns the steps made), and
     the action names."""
@@ -71,19 +91,7 @@ def single_runner(steps: int, seed: int) -> tuple[Callable[[int], int], list[str
     names = list(cast(spaces.Dict, env.action_space).spaces)
     rng = np.random.default_rng(seed)
     actions = [{names[int(k)]: 1} for k in rng.integers(0, len(names), steps)]
-    env.reset(seed=0)
-    where = [0]
-
-    def run(n: int) -> int:
-        for _ in range(n):
-            a = actions[where[0] % len(actions)]
-            where[0] += 1
-            _, _, terminated, truncated, _ = env.step(a)
-            if terminated or truncated:
-                env.reset()
-        return n
-
-    return run, names
+    return episodes(env, actions), names
 
 
 def vector_runner(
@@ -126,21 +134,7 @@ def peer_runner(steps: int, names: list[str], seed: int) -> Callable[[int], int]
         return f"pyRDDLGym names the actions otherwise ({sorted(missing)[:3]}): skipped"
     rng = np.random.default_rng(seed)
     actions = [{names[int(k)]: True} for k in rng.integers(0, len(names), steps)]
-    env.reset(seed=0)
-    where = [0]
-
-    def run(n: int) -> int:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            for _ in range(n):
-                a = actions[where[0] % len(actions)]
-                where[0] += 1
-                _, _, terminated, truncated, _ = env.step(a)
-                if terminated or truncated:
-                    env.reset()
-        return n
-
-    return run
+    return episodes(env, actions)
 
 
 def best_rate(run: Callable[[int], int], n: int, times: list[float]) -> float:

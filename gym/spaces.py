@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import math
 from collections import OrderedDict
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -166,18 +166,13 @@ class FluentCodec:
             f"action {f.keys[j]!r}: {value!r} is not in {self._subspace(f, j)}{where}"
         )
 
-    def decode_one(self, action: Mapping[str, Any]) -> tuple[dict[str, np.ndarray], int]:
-        """The simulator's arrays (a batch of one) of one Dict value of the
-        action space, and how many of its values differ from their default.
-        Keys left out take their default (and fluents with no key given are
-        left out: the simulator fills in their defaults); an unknown key or a
-        value outside its space is a ValueError."""
+    def _located(self, action: Mapping[str, Any]) -> Iterator[tuple[str, Any, tuple[int, int]]]:
+        """(key, value, (fluent, grounding)) of each key of an action; a ValueError
+        for something that is not a mapping or for a key that is not an action."""
         if not isinstance(action, Mapping):
             raise ValueError(
                 f"an action is a dict of grounded action names to values, not {type(action).__name__}"
             )
-        touched: dict[int, np.ndarray] = {}
-        nondef = 0
         where = self.where
         for key, value in action.items():
             loc = where.get(key)
@@ -185,7 +180,17 @@ class FluentCodec:
                 raise ValueError(
                     f"unknown action {key!r} (actions: {', '.join(self.keys[:8])}, ...)"
                 )
-            fi, j = loc
+            yield key, value, loc
+
+    def decode_one(self, action: Mapping[str, Any]) -> tuple[dict[str, np.ndarray], int]:
+        """The simulator's arrays (a batch of one) of one Dict value of the
+        action space, and how many of its values differ from their default.
+        Keys left out take their default (and fluents with no key given are
+        left out: the simulator fills in their defaults); an unknown key or a
+        value outside its space is a ValueError."""
+        touched: dict[int, np.ndarray] = {}
+        nondef = 0
+        for _key, value, (fi, j) in self._located(action):
             f = self.fluents[fi]
             try:
                 if f.p.range == "real":
@@ -213,19 +218,8 @@ class FluentCodec:
         """`decode_one` for a batched Dict value (each key an array of n values,
         or one value for all n): the arrays, batch first, and the number of
         non-default values of each of the n actions."""
-        if not isinstance(action, Mapping):
-            raise ValueError(
-                f"an action is a dict of grounded action names to values, not {type(action).__name__}"
-            )
         touched: dict[int, np.ndarray] = {}
-        where = self.where
-        for key, value in action.items():
-            loc = where.get(key)
-            if loc is None:
-                raise ValueError(
-                    f"unknown action {key!r} (actions: {', '.join(self.keys[:8])}, ...)"
-                )
-            fi, j = loc
+        for key, value, (fi, j) in self._located(action):
             s = touched.get(fi)
             if s is None:
                 s = touched[fi] = np.repeat(self._stage[fi][None], n, axis=0)
