@@ -20,6 +20,7 @@ from ...rddl.simulator import SimulationError, Simulator, State
 from ...rddl.wire import WireCodec, WireError
 from ..base import Observation, Planner, PlannerError, SessionInfo, WireFluent
 from .actions import ActionChooser, ActionLibrary, _row_keys
+from .deadline import Deadline
 from .options import OPTIONS, Settings, read_settings
 from .rollouts import Expander
 from .stats import SearchStats
@@ -78,7 +79,23 @@ class MCTSPlanner(Planner):
         self._state_names = [p.name for p in sim.state_fluents]
         self._discrete_obs = all(p.range != "real" for p in sim.observ_fluents)
         self.stats = SearchStats()
+        self._warm_up(sim)
         log.info("mcts: %s, %s, seed %s", session.instance, self._chooser.describe(), seed)
+
+    @staticmethod
+    def _warm_up(sim: Simulator) -> None:
+        """Compile the simulator's functions for every batch size the search
+        uses now rather than in the first turn's search, so that the first
+        turn keeps its deadline too (a failure is left for the search)."""
+        rng = np.random.default_rng(0)  # not the search's: seeded runs stay the same
+        for batch in (1, 2, 4096):
+            state = sim.initial_state(batch)
+            noop = sim.noop(batch)
+            try:
+                sim.check_actions(state, noop)
+                sim.step(state, noop, rng, check=False)
+            except Exception as err:  # noqa: BLE001 - the search meets and reports it
+                log.debug("mcts: warm-up step of %d states failed: %s", batch, err)
 
     def start_round(self, round_num: int) -> None:
         self._table = {}
@@ -122,16 +139,20 @@ class MCTSPlanner(Planner):
             raise PlannerError("mcts: act() called before start_session()")
         st = self.settings
         started = time.monotonic()
-        deadline = started + st.time_per_step if st.time_per_step is not None else obs.deadline
+        deadline = obs.deadline
+        if st.time_per_step is not None:
+            # never past the session's own budget either
+            deadline = min(started + st.time_per_step, obs.deadline)
         turn = SearchStats(turns=1)
         lookahead = obs.steps_left if st.depth == 0 else min(st.depth, obs.steps_left)
         root, reused = self._make_root(obs, lookahead)
         turn.reused = int(reused)
+        clock = Deadline(None if st.iterations is not None else deadline)
         try:
             if not root.expanded:
-                self._expand([root], turn)
+                self._expand([root], turn, clock)
             if len(root.acts) > 1:
-                self._search(root, deadline, turn)
+                self._search(root, clock, turn)
                 refresh(root, self._discount(), st.init_weight, st.bellman_outcomes)
         except SimulationError as err:
             # A model the search cannot simulate (e.g. a distribution given bad
@@ -168,9 +189,11 @@ class MCTSPlanner(Planner):
             )
         return self._codec.actions(actions, index=0)
 
-    def _expand(self, leaves: list[_Node], turn: SearchStats) -> None:
+    def _expand(
+        self, leaves: list[_Node], turn: SearchStats, clock: Deadline | None = None
+    ) -> None:
         assert self._expander is not None
-        self._expander.expand(leaves, turn, self._discount())
+        self._expander.expand(leaves, turn, self._discount(), clock)
 
     def _discount(self) -> float:
         assert self._model is not None
@@ -256,32 +279,44 @@ class MCTSPlanner(Planner):
     def _state_keys(self, states: State) -> list[bytes]:
         return _row_keys([states.values[k] for k in self._state_names], states.batch)
 
-    def _search(self, root: _Node, deadline: float, turn: SearchStats) -> None:
+    def _search(self, root: _Node, clock: Deadline, turn: SearchStats) -> None:
         """Waves of trials until the deadline (or `iterations` waves)."""
         n_acts = max(1, len(root.acts))
         trials = max(
             1, self.settings.batch // (n_acts * self.settings.rollouts * self.settings.modes)
         )
-        wave_time = 0.0
+        iterations = self.settings.iterations
         waves = 0
+        wave_time = 0.0
         while True:
-            if self.settings.iterations is not None:
-                if waves >= self.settings.iterations:
+            size = trials
+            if iterations is not None:
+                if waves >= iterations:
                     break
-            elif waves > 0 and time.monotonic() + wave_time > deadline:
-                break
+            elif waves > 0:
+                # A wave cut short by the deadline leaves its leaves with
+                # rollouts cut short too (their estimates extrapolated from a
+                # step or two): start only what is likely to finish, a
+                # smaller wave when the time left is less than a whole one.
+                left = clock.left() - clock.reserve
+                if left < 0.25 * wave_time or clock.passed(2.0):
+                    break
+                if left < wave_time:
+                    size = max(1, int(trials * left / wave_time))
             t0 = time.monotonic()
-            self._wave(root, trials, turn)
+            self._wave(root, size, turn, clock)
             waves += 1
-            # the slower of the last wave and a decaying average: stop early
-            # rather than late
             took = time.monotonic() - t0
-            wave_time = max(took, 0.7 * wave_time + 0.3 * took)
+            if size == trials:
+                # the slower of the last whole wave and a decaying average
+                wave_time = max(took, 0.7 * wave_time + 0.3 * took)
         turn.waves += waves
 
-    def _wave(self, root: _Node, n_trials: int, turn: SearchStats) -> None:
+    def _wave(self, root: _Node, n_trials: int, turn: SearchStats, clock: Deadline) -> None:
         """Descend `n_trials` trials together, expand their new leaves in one
-        batch and back the values up."""
+        batch and back the values up. Near the deadline the descent stops
+        (each trial backs up the value of the node it reached) and the
+        rollouts are cut short."""
         assert self._sim is not None and self.library is not None and root.states is not None
         sim = self._sim
         rows = (
@@ -296,6 +331,9 @@ class MCTSPlanner(Planner):
         leaves: dict[int, _Node] = {}
         level = 0
         while active:
+            clock.tick()
+            if level > 0 and clock.passed():
+                break
             level += 1
             choices = []
             acts = np.empty(len(active), dtype=np.int64)
@@ -342,11 +380,15 @@ class MCTSPlanner(Planner):
         for node in touched:
             node.pending = [0] * len(node.pending)
         if leaves:
-            self._expand(list(leaves.values()), turn)
+            clock.restart()
+            self._expand(list(leaves.values()), turn, clock)
         gamma = self._discount()
         st = self.settings
+        t0 = time.monotonic()
         for trial in trials:
             backup(trial, gamma, st.init_weight, st.bellman_outcomes)
+        clock.reserve = time.monotonic() - t0
+        clock.restart()
         turn.trials += n_trials
 
     def _node(self, key: bytes, states: State, row: int, steps: int, done: bool) -> _Node:

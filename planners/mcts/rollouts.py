@@ -13,6 +13,7 @@ import numpy as np
 
 from ...rddl.simulator import Simulator, State
 from .actions import ActionChooser
+from .deadline import Deadline
 from .options import Settings
 from .stats import SearchStats
 from .tree import _Node
@@ -32,9 +33,16 @@ class Expander:
         self.rng = rng
         self.state_names = [p.name for p in sim.state_fluents]
 
-    def expand(self, leaves: list[_Node], turn: SearchStats, gamma: float) -> None:
+    def expand(
+        self,
+        leaves: list[_Node],
+        turn: SearchStats,
+        gamma: float,
+        clock: Deadline | None = None,
+    ) -> None:
         """Give every leaf its candidates and their rollout estimates, all
-        leaves' rollouts in one batch."""
+        leaves' rollouts in one batch (cut short when `clock` says the
+        deadline is near: at least the first action is always simulated)."""
         st = self.settings
         states = [leaf.states for leaf in leaves]
         assert all(s is not None for s in states)
@@ -62,7 +70,7 @@ class Expander:
         returns = np.zeros(0)
         if first:
             d_all = np.concatenate(depth)
-            returns, ended = self.rollouts(
+            returns, ended, reached = self.rollouts(
                 leaves,
                 np.concatenate(leaf_of),
                 np.concatenate(start),
@@ -70,10 +78,11 @@ class Expander:
                 d_all,
                 gamma,
                 turn,
+                clock,
             )
-            if st.extrapolate and st.rollout_depth:
+            if st.extrapolate and (st.rollout_depth or (reached < d_all).any()):
                 # rollouts that reached a terminal state have their whole return
-                factor = _horizon_factor(np.concatenate(steps), d_all, gamma)
+                factor = _horizon_factor(np.concatenate(steps), reached, gamma)
                 returns *= np.where(ended, 1.0, factor)
         offset = 0
         for leaf, rows in zip(leaves, cands, strict=True):
@@ -108,11 +117,13 @@ class Expander:
         depth: Array,
         gamma: float,
         turn: SearchStats,
-    ) -> tuple[Array, Array]:
+        clock: Deadline | None = None,
+    ) -> tuple[Array, Array, Array]:
         """Discounted returns of the rollouts (the first action given, then
         the rollout policy: noop for the rows of mode 1 when the policy is
-        `best`, else `rollout_policy`) and which of them reached a terminal
-        state."""
+        `best`, else `rollout_policy`), which of them reached a terminal
+        state, and how many steps each simulated (`depth`, or fewer where
+        it ended or the deadline came first)."""
         sim = self.sim
         st = self.settings
         n = len(first)
@@ -130,6 +141,7 @@ class Expander:
             use_noop = np.zeros(n, dtype=bool)
         returns = np.zeros(n)
         ended = np.zeros(n, dtype=bool)
+        reached = np.zeros(n, dtype=np.int64)
         idx = np.arange(n)  # rows still rolling out, as rows of `returns`
         acts = self.chooser.lib.take(first)
         discount = 1.0
@@ -142,8 +154,11 @@ class Expander:
             discount *= gamma
             t += 1
             ended[idx] = out.done
+            reached[idx] = t
             alive = (~out.done) & (depth[idx] > t)
-            if not alive.any():
+            if clock is not None:
+                clock.tick()
+            if not alive.any() or (clock is not None and clock.passed()):
                 break
             if not alive.all():
                 keep = np.flatnonzero(alive)
@@ -152,7 +167,7 @@ class Expander:
             else:
                 states = out.next_state
             acts = self.chooser.rollout_actions(states, use_noop[idx])
-        return returns, ended
+        return returns, ended, reached
 
 
 def _horizon_factor(steps: Array, depth: Array, gamma: float) -> Array:
