@@ -11,6 +11,7 @@ from dataclasses import dataclass
 from ..base import Planner
 
 ROLLOUT_POLICIES = ("random", "noop", "best")
+HEURISTICS = ("ids", "rollout")
 
 OPTIONS: dict[str, str] = {
     "time_per_step": "seconds of search per turn (default: the client's deadline, the "
@@ -30,7 +31,18 @@ OPTIONS: dict[str, str] = {
     "tree before it backs up the value of the node it reached (default 10; 0: no limit)",
     "rollout_policy": "policy after a leaf's first action: random (uniform legal joint "
     "actions), noop, or best (both; the better mean counts) (default best)",
-    "init_weight": "visits the rollout estimate of a new action counts as (default 1)",
+    "init_weight": "visits the heuristic estimate of a new action counts as (default 1)",
+    "heuristic": "how a new node's actions get their first values: ids (PROST's iterative "
+    "deepening search on the most-likely determinisation, with rollouts where it is too "
+    "slow) or rollout (default ids)",
+    "heuristic_weight": "the ids estimate is multiplied by this (PROST's 0.5; default 0.5)",
+    "ids_timeout": "seconds of ids search per new node, which sets its depth in a learning "
+    "phase at the start of the session (default 0.003)",
+    "ids_depth": "fixed depth of the ids search instead of the learned one (default 0: "
+    "learned, except with iterations, where it is 5 so that a seed gives the same search "
+    "on any machine)",
+    "reward_locks": "a new node whose reward can no longer change (a dead end or a goal) "
+    "is solved at once (the check costs up to 0.1 s a state; default no)",
     "max_actions": "most candidate joint actions per decision node: all the legal ones when "
     "there are no more, else noop and a uniform sample of the others (default 128)",
     "enumerate_limit": "rollouts draw from the boolean joint actions enumerated once per "
@@ -63,6 +75,11 @@ class Settings:
     extrapolate: bool = True
     rollout_policy: str = "best"
     init_weight: float = 1.0
+    heuristic: str = "ids"
+    heuristic_weight: float = 0.5
+    ids_timeout: float = 0.003
+    ids_depth: int = 0
+    reward_locks: bool = False
     max_actions: int = 128
     enumerate_limit: int = 4096
     particles: int = 64
@@ -96,6 +113,9 @@ def read_settings(planner: Planner) -> Settings:
         raise planner._option_error(
             "rollout_policy", policy, "one of " + ", ".join(ROLLOUT_POLICIES)
         )
+    heuristic = (planner.str_option("heuristic", "ids") or "ids").strip().lower()
+    if heuristic not in HEURISTICS:
+        raise planner._option_error("heuristic", heuristic, "one of " + ", ".join(HEURISTICS))
     return Settings(
         time_per_step=planner.float_option("time_per_step", None, minimum=0.0),
         iterations=planner.int_option("iterations", None, minimum=1),
@@ -108,6 +128,11 @@ def read_settings(planner: Planner) -> Settings:
         extrapolate=planner.bool_option("extrapolate", True),
         rollout_policy=policy,
         init_weight=number("init_weight", 1.0, minimum=1e-9),
+        heuristic=heuristic,
+        heuristic_weight=number("heuristic_weight", 0.5),
+        ids_timeout=number("ids_timeout", 0.003, minimum=1e-6),
+        ids_depth=whole("ids_depth", 0, 0),
+        reward_locks=planner.bool_option("reward_locks", False),
         max_actions=whole("max_actions", 128, 1),
         enumerate_limit=whole("enumerate_limit", 4096, 1),
         particles=whole("particles", 64, 1),

@@ -21,6 +21,7 @@ from ...rddl.wire import WireCodec, WireError
 from ..base import Observation, Planner, PlannerError, SessionInfo, WireFluent
 from .actions import ActionChooser, ActionLibrary, _row_keys
 from .deadline import Deadline
+from .heuristic import IDS, RewardLocks, training_states
 from .options import OPTIONS, Settings, read_settings
 from .rollouts import Expander
 from .stats import SearchStats
@@ -75,12 +76,57 @@ class MCTSPlanner(Planner):
         self._model = session.model
         self._codec = WireCodec(sim)
         self._chooser = ActionChooser(sim, self.settings, self.rng)
-        self._expander = Expander(sim, self._chooser, self.settings, self.rng)
+        self._warm_up(sim)
+        ids, locks = self._heuristic(session)
+        self._expander = Expander(sim, self._chooser, self.settings, self.rng, ids, locks)
         self._state_names = [p.name for p in sim.state_fluents]
         self._discrete_obs = all(p.range != "real" for p in sim.observ_fluents)
         self.stats = SearchStats()
-        self._warm_up(sim)
         log.info("mcts: %s, %s, seed %s", session.instance, self._chooser.describe(), seed)
+
+    def _heuristic(self, session: SessionInfo) -> tuple[IDS | None, RewardLocks | None]:
+        """IDS (learned on random-walk states, PROST's learning phase) and
+        the reward-lock check, as the options ask. Their own generator:
+        the search's draws stay those of the seed."""
+        st = self.settings
+        if st.heuristic != "ids" and not st.reward_locks:
+            return None, None
+        sim = session.simulator
+        seed = st.seed if st.seed is not None else session.seed
+        rng = np.random.default_rng(None if seed is None else [seed, 1])
+        ids: IDS | None = None
+        try:
+            ids = IDS.for_model(
+                session.model,
+                enumerate_limit=st.enumerate_limit,
+                timeout=st.ids_timeout,
+                clock=time.monotonic,
+            )
+            fixed = st.ids_depth or (5 if st.iterations is not None else 0)
+            if st.heuristic == "ids" and fixed:
+                # no learning: the depth does not depend on the machine's speed
+                ids.max_depth = fixed
+                ids.learned = True
+            elif st.heuristic == "ids":
+                n_acts = 1 if ids.table is None else len(next(iter(ids.table.values()), [0]))
+                # the leaves of a wave are searched together: learn in groups as big
+                group = max(1, min(32, st.batch // max(1, n_acts * st.rollouts * st.modes)))
+                train = training_states(sim, rng)
+                steps = session.model.horizon or 40
+                # compile the determinised simulator's functions before they are timed
+                depth, ids.max_depth = ids.max_depth, 2
+                ids.estimate(train, [steps] * train.batch, [ids.legal_table(train[0])] * train.batch)
+                ids.max_depth = depth
+                ids.learn(train, steps=steps, batch=group)
+        except SimulationError as err:
+            log.warning("mcts: no IDS heuristic for %s (%s); rollouts instead", session.instance, err)
+            ids = None
+        locks = None
+        if st.reward_locks and ids is not None and ids.table is not None:
+            locks = RewardLocks(session.model, ids.table)
+        if st.heuristic != "ids":
+            ids = None
+        return ids, locks
 
     @staticmethod
     def _warm_up(sim: Simulator) -> None:

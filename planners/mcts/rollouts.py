@@ -14,6 +14,7 @@ import numpy as np
 from ...rddl.simulator import Simulator, State
 from .actions import ActionChooser
 from .deadline import Deadline
+from .heuristic import IDS, RewardLocks
 from .options import Settings
 from .stats import SearchStats
 from .tree import _Node
@@ -22,16 +23,38 @@ Array = np.ndarray
 
 
 class Expander:
-    """Gives new leaves their candidates and rollout estimates."""
+    """Gives new leaves their candidates and first estimates: IDS on the
+    most-likely determinisation (`ids`, unless it is too slow for the
+    budget), else rollouts; a reward lock (`locks`) gets one candidate and
+    its exact value, and is solved."""
 
     def __init__(
-        self, sim: Simulator, chooser: ActionChooser, settings: Settings, rng: np.random.Generator
+        self,
+        sim: Simulator,
+        chooser: ActionChooser,
+        settings: Settings,
+        rng: np.random.Generator,
+        ids: IDS | None = None,
+        locks: RewardLocks | None = None,
     ):
         self.sim = sim
         self.chooser = chooser
         self.settings = settings
         self.rng = rng
+        self.ids = ids
+        self.locks = locks
         self.state_names = [p.name for p in sim.state_fluents]
+
+    def _locked(self, leaf: _Node, values: list[float]) -> bool:
+        """Whether the leaf's state is a reward lock. Checked only where
+        every candidate's estimate is the same (so it is where the reward
+        cannot change): the check itself is slow."""
+        if self.locks is None or not values or leaf.states is None or leaf.states.batch != 1:
+            return False
+        lo, hi = min(values), max(values)
+        if hi - lo > 1e-9 * max(1.0, abs(hi)):
+            return False
+        return self.locks.check(leaf.states) is not None
 
     def expand(
         self,
@@ -40,52 +63,46 @@ class Expander:
         gamma: float,
         clock: Deadline | None = None,
     ) -> None:
-        """Give every leaf its candidates and their rollout estimates, all
-        leaves' rollouts in one batch (cut short when `clock` says the
-        deadline is near: at least the first action is always simulated)."""
+        """Give every leaf its candidates and their first estimates, all
+        leaves' IDS searches, and all their rollouts, in one batch each
+        (rollouts are cut short when `clock` says the deadline is near: at
+        least the first action is always simulated)."""
         st = self.settings
         states = [leaf.states for leaf in leaves]
         assert all(s is not None for s in states)
         cands = self.chooser.candidates(states)  # type: ignore[arg-type]
-        m = st.rollouts
-        modes = st.modes
-        # rows: for each leaf, each candidate, each mode, m rollouts
-        leaf_of: list[Array] = []
-        first: list[Array] = []
-        depth: list[Array] = []
-        steps: list[Array] = []
-        start: list[Array] = []
-        for i, (leaf, rows) in enumerate(zip(leaves, cands, strict=True)):
-            k = len(rows) * modes * m
-            if k == 0:
-                continue
-            assert leaf.states is not None
-            leaf_of.append(np.full(k, i))
-            first.append(np.repeat(rows, modes * m))
-            d = leaf.steps if st.rollout_depth == 0 else min(st.rollout_depth, leaf.steps)
-            depth.append(np.full(k, d))
-            steps.append(np.full(k, leaf.steps))
-            p = leaf.states.batch
-            start.append(self.rng.integers(0, p, k) if p > 1 else np.zeros(k, dtype=np.int64))
-        returns = np.zeros(0)
-        if first:
-            d_all = np.concatenate(depth)
-            returns, ended, reached = self.rollouts(
-                leaves,
-                np.concatenate(leaf_of),
-                np.concatenate(start),
-                np.concatenate(first),
-                d_all,
-                gamma,
-                turn,
-                clock,
+        h: list[list[float]] = [[] for _ in leaves]
+        use_ids = self.ids is not None and not self.ids.fallback
+        by_ids = [i for i in range(len(leaves)) if len(cands[i])] if use_ids else []
+        if by_ids:
+            assert self.ids is not None
+            q = self.ids.estimate(
+                _stack_states([leaves[i].states for i in by_ids], self.state_names),
+                [leaves[i].steps for i in by_ids],
+                [self.chooser.lib.take(cands[i]) for i in by_ids],
+                deadline=None if clock is None else clock.at,
             )
-            if st.extrapolate and (st.rollout_depth or (reached < d_all).any()):
-                # rollouts that reached a terminal state have their whole return
-                factor = _horizon_factor(np.concatenate(steps), reached, gamma)
-                returns *= np.where(ended, 1.0, factor)
-        offset = 0
-        for leaf, rows in zip(leaves, cands, strict=True):
+            for i, qi in zip(by_ids, q, strict=True):
+                finite = qi[np.isfinite(qi)]
+                # an action IDS finds illegal (it is not in the search's
+                # view) ranks below every other
+                low = float(finite.min()) - 1.0 if len(finite) else 0.0
+                h[i] = np.where(np.isfinite(qi), qi, low).tolist()
+            turn.ids_leaves += len(by_ids)
+        done = set(by_ids)
+        rolled = [i for i in range(len(leaves)) if len(cands[i]) and i not in done]
+        if rolled:
+            self._rollout_estimates(leaves, cands, rolled, h, turn, gamma, clock)
+        locked = set()
+        for i, leaf in enumerate(leaves):
+            if self._locked(leaf, h[i]):
+                # whatever is done the reward stays: one action, its exact value
+                locked.add(i)
+                cands[i] = cands[i][:1]
+                h[i] = h[i][:1]
+            elif i in done and st.heuristic_weight != 1.0:
+                h[i] = [st.heuristic_weight * v for v in h[i]]
+        for i, (leaf, rows) in enumerate(zip(leaves, cands, strict=True)):
             a = len(rows)
             leaf.acts = rows
             leaf.cnt = [0.0] * a
@@ -94,11 +111,12 @@ class Expander:
             leaf.nsum = st.init_weight * a
             leaf.children = [{} for _ in range(a)]
             if a:
-                block = returns[offset : offset + a * modes * m].reshape(a, modes, m).mean(axis=2)
-                leaf.h = block.max(axis=1).tolist()
+                leaf.h = h[i]
                 leaf.qv = list(leaf.h)
-                offset += a * modes * m
                 leaf.value = max(leaf.h)
+                if i in locked:
+                    leaf.terminal = True  # solved: its value is exact
+                    turn.locks += 1
             else:
                 # nothing is legal here (not even noop): a dead end
                 leaf.h = []
@@ -107,6 +125,60 @@ class Expander:
                 leaf.value = 0.0
             leaf.expanded = True
         turn.leaves += len(leaves)
+
+    def _rollout_estimates(
+        self,
+        leaves: list[_Node],
+        cands: list[Array],
+        which: list[int],
+        h: list[list[float]],
+        turn: SearchStats,
+        gamma: float,
+        clock: Deadline | None,
+    ) -> None:
+        """`h[i]` for each leaf i of `which`: the mean rollout return of each
+        candidate (the better policy's with `best`)."""
+        st = self.settings
+        m = st.rollouts
+        modes = st.modes
+        # rows: for each leaf, each candidate, each mode, m rollouts
+        leaf_of: list[Array] = []
+        first: list[Array] = []
+        depth: list[Array] = []
+        steps: list[Array] = []
+        start: list[Array] = []
+        for i in which:
+            leaf, rows = leaves[i], cands[i]
+            k = len(rows) * modes * m
+            assert leaf.states is not None
+            leaf_of.append(np.full(k, i))
+            first.append(np.repeat(rows, modes * m))
+            d = leaf.steps if st.rollout_depth == 0 else min(st.rollout_depth, leaf.steps)
+            depth.append(np.full(k, d))
+            steps.append(np.full(k, leaf.steps))
+            p = leaf.states.batch
+            start.append(self.rng.integers(0, p, k) if p > 1 else np.zeros(k, dtype=np.int64))
+        d_all = np.concatenate(depth)
+        returns, ended, reached = self.rollouts(
+            leaves,
+            np.concatenate(leaf_of),
+            np.concatenate(start),
+            np.concatenate(first),
+            d_all,
+            gamma,
+            turn,
+            clock,
+        )
+        # rollouts that reached a terminal state have their whole return
+        factor = _horizon_factor(np.concatenate(steps), reached, gamma)
+        if st.extrapolate:
+            returns *= np.where(ended, 1.0, factor)
+        offset = 0
+        for i in which:
+            a = len(cands[i])
+            block = returns[offset : offset + a * modes * m].reshape(a, modes, m).mean(axis=2)
+            h[i] = block.max(axis=1).tolist()
+            offset += a * modes * m
 
     def rollouts(
         self,

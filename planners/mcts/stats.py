@@ -15,6 +15,8 @@ class SearchStats:
     waves: int = 0
     trials: int = 0
     leaves: int = 0  # decision nodes expanded
+    ids_leaves: int = 0  # of them, those IDS estimated
+    locks: int = 0  # of them, reward locks (solved at once)
     reused: int = 0  # turns whose root came from the last turn's tree
     sim_steps: int = 0  # state transitions simulated (every row of every batched step)
     sim_calls: int = 0  # batched simulator calls
@@ -31,6 +33,8 @@ class SearchStats:
         self.waves += other.waves
         self.trials += other.trials
         self.leaves += other.leaves
+        self.ids_leaves += other.ids_leaves
+        self.locks += other.locks
         self.reused += other.reused
         self.sim_steps += other.sim_steps
         self.sim_calls += other.sim_calls
