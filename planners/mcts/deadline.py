@@ -49,6 +49,11 @@ class Deadline:
             and time.monotonic() + pieces * self.piece + self.reserve >= self.at
         )
 
+    def stop_at(self) -> float | None:
+        """When to start no more pieces: the deadline less two slow pieces
+        and the backups (None without a deadline)."""
+        return None if self.at is None else self.at - 2.0 * self.piece - self.reserve
+
     def left(self) -> float:
         """Seconds to the deadline (infinite without one)."""
         return float("inf") if self.at is None else self.at - time.monotonic()

@@ -80,7 +80,7 @@ class Expander:
                 _stack_states([leaves[i].states for i in by_ids], self.state_names),
                 [leaves[i].steps for i in by_ids],
                 [self.chooser.lib.take(cands[i]) for i in by_ids],
-                deadline=None if clock is None else clock.at,
+                deadline=None if clock is None else clock.stop_at(),
             )
             for i, qi in zip(by_ids, q, strict=True):
                 finite = qi[np.isfinite(qi)]
