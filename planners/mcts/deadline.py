@@ -45,8 +45,7 @@ class Deadline:
         """Whether `pieces` more pieces of work (and the backups) would end
         past the deadline."""
         return (
-            self.at is not None
-            and time.monotonic() + pieces * self.piece + self.reserve >= self.at
+            self.at is not None and time.monotonic() + pieces * self.piece + self.reserve >= self.at
         )
 
     def stop_at(self) -> float | None:

@@ -115,11 +115,15 @@ class MCTSPlanner(Planner):
                 steps = session.model.horizon or 40
                 # compile the determinised simulator's functions before they are timed
                 depth, ids.max_depth = ids.max_depth, 2
-                ids.estimate(train, [steps] * train.batch, [ids.legal_table(train[0])] * train.batch)
+                ids.estimate(
+                    train, [steps] * train.batch, [ids.legal_table(train[0])] * train.batch
+                )
                 ids.max_depth = depth
                 ids.learn(train, steps=steps, batch=group)
         except SimulationError as err:
-            log.warning("mcts: no IDS heuristic for %s (%s); rollouts instead", session.instance, err)
+            log.warning(
+                "mcts: no IDS heuristic for %s (%s); rollouts instead", session.instance, err
+            )
             ids = None
         locks = None
         if st.reward_locks and ids is not None and ids.table is not None:

@@ -63,6 +63,8 @@ def test_turns_keep_time_per_step_under_a_busy_loop(domain: str, n: int) -> None
         busy.kill()
         busy.wait(timeout=10)
     worst = max(took)
-    assert worst <= BUDGET + SLACK, f"turn times {[round(t, 3) for t in took]} s for a {BUDGET} s budget"
+    assert worst <= BUDGET + SLACK, (
+        f"turn times {[round(t, 3) for t in took]} s for a {BUDGET} s budget"
+    )
     # and the budget is used, not given away
     assert float(np.median(took)) >= 0.8 * BUDGET, took
