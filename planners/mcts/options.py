@@ -32,10 +32,11 @@ OPTIONS: dict[str, str] = {
     "rollout_policy": "policy after a leaf's first action: random (uniform legal joint "
     "actions), noop, or best (both; the better mean counts) (default best)",
     "init_weight": "visits the heuristic estimate of a new action counts as (default 1)",
-    "heuristic": "how a new node's actions get their first values: ids (PROST's iterative "
-    "deepening search on the most-likely determinisation, with rollouts where it is too "
-    "slow) or rollout (default ids)",
-    "heuristic_weight": "the ids estimate is multiplied by this (PROST's 0.5; default 0.5)",
+    "heuristic": "how a new node's actions get their first values: rollout, or ids (PROST's "
+    "iterative deepening search on the most-likely determinisation, with rollouts where it "
+    "is too slow or values every action alike) (default rollout)",
+    "heuristic_weight": "the ids estimate is multiplied by this (PROST's is 0.5; default 1, "
+    "the scale of the rollouts that stand in where ids cannot tell the actions apart)",
     "ids_timeout": "seconds of ids search per new node, which sets its depth in a learning "
     "phase at the start of the session (default 0.003)",
     "ids_depth": "fixed depth of the ids search instead of the learned one (default 0: "
@@ -75,8 +76,8 @@ class Settings:
     extrapolate: bool = True
     rollout_policy: str = "best"
     init_weight: float = 1.0
-    heuristic: str = "ids"
-    heuristic_weight: float = 0.5
+    heuristic: str = "rollout"
+    heuristic_weight: float = 1.0
     ids_timeout: float = 0.003
     ids_depth: int = 0
     reward_locks: bool = False
@@ -113,7 +114,7 @@ def read_settings(planner: Planner) -> Settings:
         raise planner._option_error(
             "rollout_policy", policy, "one of " + ", ".join(ROLLOUT_POLICIES)
         )
-    heuristic = (planner.str_option("heuristic", "ids") or "ids").strip().lower()
+    heuristic = (planner.str_option("heuristic", "rollout") or "rollout").strip().lower()
     if heuristic not in HEURISTICS:
         raise planner._option_error("heuristic", heuristic, "one of " + ", ".join(HEURISTICS))
     return Settings(
@@ -129,7 +130,7 @@ def read_settings(planner: Planner) -> Settings:
         rollout_policy=policy,
         init_weight=number("init_weight", 1.0, minimum=1e-9),
         heuristic=heuristic,
-        heuristic_weight=number("heuristic_weight", 0.5),
+        heuristic_weight=number("heuristic_weight", 1.0),
         ids_timeout=number("ids_timeout", 0.003, minimum=1e-6),
         ids_depth=whole("ids_depth", 0, 0),
         reward_locks=planner.bool_option("reward_locks", False),

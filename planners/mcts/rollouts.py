@@ -51,8 +51,7 @@ class Expander:
         cannot change): the check itself is slow."""
         if self.locks is None or not values or leaf.states is None or leaf.states.batch != 1:
             return False
-        lo, hi = min(values), max(values)
-        if hi - lo > 1e-9 * max(1.0, abs(hi)):
+        if not _all_equal(np.asarray(values)):
             return False
         return self.locks.check(leaf.states) is not None
 
@@ -82,14 +81,22 @@ class Expander:
                 [self.chooser.lib.take(cands[i]) for i in by_ids],
                 deadline=None if clock is None else clock.stop_at(),
             )
+            done: set[int] = set()
             for i, qi in zip(by_ids, q, strict=True):
                 finite = qi[np.isfinite(qi)]
+                if len(qi) > 1 and len(finite) == len(qi) and _all_equal(finite):
+                    # IDS tells these actions apart no better than a coin
+                    # (its determinisation may have lost what matters, as
+                    # in Traffic where no car ever comes): rollouts instead
+                    continue
                 # an action IDS finds illegal (it is not in the search's
                 # view) ranks below every other
                 low = float(finite.min()) - 1.0 if len(finite) else 0.0
                 h[i] = np.where(np.isfinite(qi), qi, low).tolist()
-            turn.ids_leaves += len(by_ids)
-        done = set(by_ids)
+                done.add(i)
+            turn.ids_leaves += len(done)
+        else:
+            done = set()
         rolled = [i for i in range(len(leaves)) if len(cands[i]) and i not in done]
         if rolled:
             self._rollout_estimates(leaves, cands, rolled, h, turn, gamma, clock)
@@ -240,6 +247,12 @@ class Expander:
                 states = out.next_state
             acts = self.chooser.rollout_actions(states, use_noop[idx])
         return returns, ended, reached
+
+
+def _all_equal(values: Array) -> bool:
+    """Whether these values are the same (to rounding)."""
+    lo, hi = float(values.min()), float(values.max())
+    return hi - lo <= 1e-9 * max(1.0, abs(hi))
 
 
 def _horizon_factor(steps: Array, depth: Array, gamma: float) -> Array:

@@ -64,9 +64,9 @@ def test_root_values_converge_to_the_exact_q_values(
 
 
 def test_ids_gives_new_nodes_their_first_values(models: dict[str, Model]) -> None:
-    """With `heuristic=ids` a new node's actions start at the heuristic
-    weight times IDS's estimate on the most-likely determinisation (trap:
-    `risky` never falls there, so it looks better, 6 a step against 5)."""
+    """With `heuristic=ids` a new node's actions start at IDS's estimate on
+    the most-likely determinisation (trap: `risky` never falls there, so it
+    looks better, 6 a step against 5)."""
     # (the search's value of this state is tested above: the trials correct it)
     model = models["tiny_trap_inst"]
     planner, sim = planner_on(model, heuristic="ids", iterations="1", batch="8", seed="1")
@@ -77,25 +77,36 @@ def test_ids_gives_new_nodes_their_first_values(models: dict[str, Model]) -> Non
     root = planner._root
     assert root is not None and planner.library is not None
     q = ids.estimate(state, [4], [planner.library.take(root.acts)])[0]
-    assert root.h == pytest.approx((0.5 * q).tolist())
+    assert root.h == pytest.approx(q.tolist())
     names = [sim.actions_to_names(planner.library.take(np.array([r]))) for r in root.acts]
     h = dict(zip(map(tuple, names), root.h, strict=True))
-    assert h[("risky = true",)] == pytest.approx(0.5 * 24.0)
+    assert h[("risky = true",)] == pytest.approx(24.0)
     # (IDS stops at depth 2, where the actions differ from noop: safe then
     # risky, 11 in two steps, 22 in four)
-    assert h[("safe = true",)] == pytest.approx(0.5 * 22.0)
+    assert h[("safe = true",)] == pytest.approx(22.0)
     assert h[()] < h[("safe = true",)]
 
 
 def test_heuristic_weight_scales_the_estimate(models: dict[str, Model]) -> None:
     model = models["tiny_trap_inst"]
     planner, sim = planner_on(
-        model, heuristic="ids", heuristic_weight="1", iterations="1", batch="8", seed="1"
+        model, heuristic="ids", heuristic_weight="0.5", iterations="1", batch="8", seed="1"
     )
     planner.act(observe(sim, sim.initial_state(1), 7, 4))
     root = planner._root
     assert root is not None
-    assert sorted(root.h) == pytest.approx([12.0, 22.0, 24.0])
+    assert sorted(root.h) == pytest.approx([6.0, 11.0, 12.0])
+
+
+def test_rollouts_where_ids_cannot_tell_the_actions_apart(models: dict[str, Model]) -> None:
+    """Dead in the trap, IDS values every action alike (-20 a step): those
+    leaves get rollouts instead, which the counters tell apart."""
+    model = models["tiny_trap_inst"]
+    planner, sim = planner_on(model, heuristic="ids", iterations="1", batch="8", seed="1")
+    planner.act(observe(sim, state_with(sim, dead=True), 7, 4))
+    assert planner.last_turn.leaves >= 1 and planner.last_turn.ids_leaves == 0
+    planner.act(observe(sim, sim.initial_state(1), 7, 4))
+    assert planner.last_turn.ids_leaves >= 1
 
 
 @pytest.mark.parametrize("locks", ["yes", "no"])
