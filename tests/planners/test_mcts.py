@@ -321,14 +321,15 @@ def test_session_seed_is_used_without_the_option(sims: dict[str, Simulator]) -> 
 
 def test_fixed_time_per_step_is_respected(sims: dict[str, Simulator]) -> None:
     sim = sims["tiny_trap_inst"]
-    planner = planner_for(sims, "tiny_trap_inst", time_per_step="0.1", batch="64", seed="3")
+    planner = planner_for(sims, "tiny_trap_inst", time_per_step="0.3", batch="64", seed="3")
     obs = observe(sim, sim.initial_state(1), 1)
     obs = Observation(**{**obs.__dict__, "deadline": time.monotonic() + 30.0})  # ignored
     t0 = time.monotonic()
     planner.act(obs)
     took = time.monotonic() - t0
     # well under the 30 s deadline it was given, with room for a busy machine
-    assert 0.05 <= took < 2.0
+    # (the deadline itself is tested under load in test_mcts_deadline.py)
+    assert 0.15 <= took < 2.0
     stats = planner.last_turn
     assert stats.waves > 1 and stats.sim_steps > 0
     assert stats.steps_per_second == pytest.approx(stats.sim_steps / stats.seconds)
