@@ -215,6 +215,17 @@ class _Connection(Generic[_StateT]):
         """The current state."""
         return self._state
 
+    @property
+    def buffered(self) -> int:
+        """Received bytes not yet handed out as events (an unfinished message, or
+        messages written ahead): what a transport bounds and times."""
+        return self._reader.buffered
+
+    def discard_buffered(self) -> None:
+        """Drop every received byte not yet handed out (a transport that gives the
+        connection up frees them at once)."""
+        self._reader.discard()
+
     def receive_data(self, data: bytes | bytearray) -> None:
         """Bytes received from the peer; ``b""`` means the peer closed the connection."""
         if data:

@@ -123,6 +123,11 @@ class MessageReader:
             return self._next_bare()
         except RemoteProtocolError as exc:
             self._error = exc
+            # the stream is unusable from here on: free its bytes now (up to
+            # max_size of them) rather than when the reader goes, which the
+            # error's traceback, holding this frame, may put off until a
+            # garbage collection
+            self.discard()
             raise
 
     # ------------------------------------------------------------------ nul mode

@@ -8,6 +8,7 @@ read-only instances and the result sinks.
 
 from __future__ import annotations
 
+import itertools
 import logging
 import signal
 import time
@@ -19,6 +20,7 @@ import trio
 
 from .config import ServerConfig
 from .environment import Environments
+from .limits import ConnectionTable, parse_networks, peer_host
 from .session import Services, Session
 
 log = logging.getLogger(__name__)
@@ -90,27 +92,50 @@ async def serve(
     port = listeners[0].socket.getsockname()[1]
     owned = services is None
     svc = services or open_services(config, registry, port)
+    table = connection_table(config)
+    keys = itertools.count(1)
     reason = "server stopped"
     try:
         async with trio.open_nursery() as nursery:
             if handle_signals:
                 nursery.start_soon(_watch_signals, nursery.cancel_scope)
+            nursery.start_soon(svc.notices.run)
+            if svc.budget is not None:
+                nursery.start_soon(svc.budget.run)
 
-            async def handler(stream: trio.SocketStream) -> None:
-                await play_connection(svc, stream)
+            async def handler(stream: trio.SocketStream, key: int) -> None:
+                try:
+                    await play_connection(svc, stream)
+                finally:
+                    table.remove(key)
                 if config.individual_session:
                     nursery.cancel_scope.cancel()
 
             async def accept_loop(listener: trio.SocketListener) -> None:
                 async with listener:
                     while True:
+                        # (one accept per pass of the scheduler: a flood of new
+                        # connections waits in the kernel's backlog while the
+                        # sessions in progress take their turns)
                         try:
                             stream = await listener.accept()
                         except OSError as err:  # e.g. too many open files: wait, go on
-                            log.error("accept failed: %s", err)
+                            svc.notices.note(
+                                f"accept failures: {err.strerror or err}",
+                                f"accept failed: {err}",
+                                logging.ERROR,
+                            )
                             await trio.sleep(0.1)
                             continue
-                        nursery.start_soon(handler, stream)
+                        host = peer_host(stream.socket)
+                        refused = table.refusal(host)
+                        if refused is not None:
+                            svc.notices.note(*refused)
+                            stream.socket.close()
+                            continue
+                        key = next(keys)
+                        table.add(key, host)
+                        nursery.start_soon(handler, stream, key)
                         if config.individual_session:
                             return
 
@@ -120,6 +145,18 @@ async def serve(
     finally:
         close_services(svc, reason, close=owned)
     return svc
+
+
+def connection_table(config: ServerConfig) -> ConnectionTable:
+    """The caps and the allowed networks the configuration asks for."""
+    total, per_address = config.connection_caps()
+    log.debug(
+        "at most %d connections open, %d per address%s",
+        total,
+        per_address,
+        f"; only from {', '.join(config.allow)}" if config.allow else "",
+    )
+    return ConnectionTable(total, per_address, parse_networks(config.allow))
 
 
 async def play_connection(

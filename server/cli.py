@@ -13,11 +13,15 @@ from ..rddl import RDDLError
 from .app import serve
 from .config import (
     DEFAULT_BUSY_POLL_US,
+    DEFAULT_MAX_BUFFERED,
+    DEFAULT_MESSAGE_TIMEOUT,
     DEFAULT_PORT,
+    DEFAULT_REQUEST_TIMEOUT,
     DEFAULT_ROUNDS,
     DEFAULT_TIMEOUT,
     ServerConfig,
 )
+from .limits import parse_networks
 from .registry import Registry
 from .workers import WorkerError, default_workers, serve_with_workers, supported
 
@@ -74,6 +78,47 @@ from .workers import WorkerError, default_workers, serve_with_workers, supported
     help="Close a session whose client is silent this many seconds (off by default, as rddlsim).",
 )
 @click.option(
+    "--request-timeout",
+    type=float,
+    default=DEFAULT_REQUEST_TIMEOUT,
+    show_default=True,
+    help="Close a connection that has not sent its whole session-request this many seconds after connecting; 0 = off.",
+)
+@click.option(
+    "--message-timeout",
+    type=float,
+    default=DEFAULT_MESSAGE_TIMEOUT,
+    show_default=True,
+    help="Close a session whose client has not finished a message this many seconds after its first byte; 0 = off.",
+)
+@click.option(
+    "--max-connections",
+    type=int,
+    default=None,
+    metavar="N",
+    help="Open connections at most; more are refused at once [default: from the open-file limit].",
+)
+@click.option(
+    "--max-connections-per-address",
+    type=int,
+    default=None,
+    metavar="N",
+    help="Open connections from one address at most [default: half of --max-connections].",
+)
+@click.option(
+    "--allow",
+    multiple=True,
+    metavar="CIDR",
+    help="Accept connections only from this network (repeatable); default: any address.",
+)
+@click.option(
+    "--max-buffered-mib",
+    type=float,
+    default=DEFAULT_MAX_BUFFERED / (1 << 20),
+    show_default=True,
+    help="MiB of unfinished messages over all sessions beyond 64 KiB each; a connection that needs more is closed.",
+)
+@click.option(
     "--busy-poll-us",
     type=float,
     default=DEFAULT_BUSY_POLL_US,
@@ -101,6 +146,12 @@ def main(
     db: Path | None,
     transcripts: Path | None,
     idle_timeout: float | None,
+    request_timeout: float,
+    message_timeout: float,
+    max_connections: int | None,
+    max_connections_per_address: int | None,
+    allow: tuple[str, ...],
+    max_buffered_mib: float,
     busy_poll_us: float,
     workers: str,
     quiet: bool,
@@ -116,6 +167,24 @@ def main(
         raise click.BadParameter("must be at least 1", param_hint="--rounds")
     if idle_timeout is not None and idle_timeout <= 0:
         raise click.BadParameter("must be positive", param_hint="--idle-timeout")
+    for name, value in (
+        ("--request-timeout", request_timeout),
+        ("--message-timeout", message_timeout),
+    ):
+        if value < 0:
+            raise click.BadParameter("must be 0 (off) or positive", param_hint=name)
+    for name, n in (
+        ("--max-connections", max_connections),
+        ("--max-connections-per-address", max_connections_per_address),
+    ):
+        if n is not None and n < 1:
+            raise click.BadParameter("must be at least 1", param_hint=name)
+    if max_buffered_mib <= 0:
+        raise click.BadParameter("must be positive", param_hint="--max-buffered-mib")
+    try:
+        parse_networks(allow)
+    except ValueError as err:
+        raise click.BadParameter(str(err), param_hint="--allow") from None
     if not 0 <= busy_poll_us <= 10_000:
         raise click.BadParameter("must be between 0 and 10000", param_hint="--busy-poll-us")
     n_workers = _workers(workers, individual_session)
@@ -146,6 +215,12 @@ def main(
         transcripts=transcripts,
         idle_timeout=idle_timeout,
         busy_poll_us=busy_poll_us,
+        request_timeout=request_timeout,
+        message_timeout=message_timeout,
+        max_connections=max_connections,
+        max_connections_per_address=max_connections_per_address,
+        allow=tuple(allow),
+        max_buffered=int(max_buffered_mib * (1 << 20)),
     )
 
     async def run() -> str | None:
@@ -164,6 +239,7 @@ def main(
                 + (" ..." if len(registry) > 8 else ""),
                 err=True,
             )
+            click.echo(_limits_line(config), err=True)
         return _last_status[0]
 
     try:
@@ -181,6 +257,22 @@ def main(
             raise
     if individual_session and status not in (None, "finished", "timeout"):
         sys.exit(1)
+
+
+def _limits_line(config: ServerConfig) -> str:
+    """What the server allows its clients (see docs/server-safety.md)."""
+    total, per_address = config.connection_caps()
+
+    def secs(value: float) -> str:
+        return f"{value:g} s" if value > 0 else "no limit"
+
+    return (
+        f"limits: {total} connections ({per_address} per address"
+        + (f", only from {', '.join(config.allow)}" if config.allow else "")
+        + f"); session-request {secs(config.request_timeout)},"
+        f" each message {secs(config.message_timeout)};"
+        f" {config.max_buffered / (1 << 20):g} MiB of unfinished messages"
+    )
 
 
 _last_status: list[str | None] = [None]

@@ -46,6 +46,7 @@ from ..protocol import (
 from ..protocol import NEED_DATA as _NEED_DATA
 from .config import ServerConfig
 from .environment import Environment, Environments, Episode, SessionDropped, StepFailed
+from .limits import BufferBudget, Notices
 from .registry import UnknownInstance
 
 log = logging.getLogger(__name__)
@@ -67,6 +68,15 @@ class Services:
     # number of sessions open in the whole server (written by the main
     # process); None in a server of one process.
     server_open: Any = None
+    # bytes of unfinished messages beyond each connection's allowance, shared
+    # by this process's sessions (None: made from the config)
+    budget: BufferBudget | None = None
+    # warnings about peers, counted once repeated (see server.limits.Notices)
+    notices: Notices = field(default_factory=lambda: Notices(log))
+
+    def __post_init__(self) -> None:
+        if self.budget is None:
+            self.budget = BufferBudget(self.config.max_buffered)
 
     def new_session_id(self) -> int:
         # rddlsim counts every accepted connection, failed ones included.
@@ -84,7 +94,18 @@ class _Channel:
     def __init__(self, stream: trio.abc.Stream, services: Services, session_id: int, t0: float):
         self.stream = stream
         self.conn = ServerConnection(max_message_size=services.config.max_message_size)
-        self.idle_timeout = services.config.idle_timeout
+        cfg = services.config
+        self.idle_timeout = cfg.idle_timeout
+        self.message_timeout = cfg.message_timeout or None
+        # until the session-request is in (cleared by the session)
+        self.request_timeout = cfg.request_timeout
+        self.request_deadline: float | None = (
+            time.monotonic() + cfg.request_timeout if cfg.request_timeout > 0 else None
+        )
+        self._msg_start: float | None = None  # when the unfinished message's first byte came
+        assert services.budget is not None
+        self._budget = services.budget
+        self._charged = 0  # bytes of the shared budget this connection holds
         self.session_id = session_id
         self.t0 = t0
         self.transcript: Any = None
@@ -152,6 +173,7 @@ class _Channel:
         while True:
             event = self.conn.next_event()
             if event is not _NEED_DATA:
+                self._msg_start = None
                 self._unwaited += 1
                 if self._unwaited >= _YIELD_EVERY:
                     # messages a client wrote ahead are all buffered, or the busy
@@ -161,26 +183,83 @@ class _Channel:
                     self._unwaited = 0
                     await trio.lowlevel.checkpoint()
                 return event
+            deadline = self._deadline()
             try:
                 polled = self._poll_briefly()
                 if polled is not None:
                     # no wait, no yield: counted with the buffered messages above
                     data: bytes | bytearray = polled
-                elif self.idle_timeout is not None:
+                elif deadline is not None or self.idle_timeout is not None:
                     self._unwaited = 0
-                    with trio.fail_after(self.idle_timeout):
+                    with trio.move_on_after(self._wake_at(deadline) - time.monotonic()) as waited:
                         data = await self._receive_some()
+                    if waited.cancelled_caught:
+                        raise self._overdue()
                 else:
                     self._unwaited = 0
                     data = await self._receive_some()
-            except trio.TooSlowError:
-                raise SessionDropped(
-                    f"client silent for {self.idle_timeout:g} s (--idle-timeout)"
-                ) from None
             except (trio.BrokenResourceError, trio.ClosedResourceError, OSError) as err:
                 raise SessionDropped(f"connection lost: {err}") from None
             self._record_inbound(data)
             self.conn.receive_data(data)
+
+    def _deadline(self) -> float | None:
+        """When the client must have finished what it is sending (the
+        session-request, an unfinished message), or None; raises when that
+        is past. Charges the shared buffer budget for an unfinished message."""
+        deadline = self.request_deadline
+        pending = self.conn.buffered
+        if pending:
+            now = time.monotonic()
+            if self._msg_start is None:
+                self._msg_start = now  # its first bytes came with the feed just made
+            if self.message_timeout is not None:
+                end = self._msg_start + self.message_timeout
+                deadline = end if deadline is None else min(deadline, end)
+            if pending > self._budget.allowance or self._charged:
+                held = self._budget.charge(self._charged, pending)
+                if held is None:
+                    raise SessionDropped(
+                        f"buffer budget exhausted: {pending:,} bytes of an unfinished message"
+                        f" would take the server's unfinished messages past"
+                        f" {self._budget.limit:,} bytes (--max-buffered)"
+                    )
+                self._charged = held
+        elif self._charged:
+            self._budget.release(self._charged)
+            self._charged = 0
+        if deadline is not None and time.monotonic() >= deadline:
+            raise self._overdue()
+        return deadline
+
+    def _wake_at(self, deadline: float | None) -> float:
+        if self.idle_timeout is None:
+            assert deadline is not None
+            return deadline
+        idle = time.monotonic() + self.idle_timeout
+        return idle if deadline is None else min(idle, deadline)
+
+    def _overdue(self) -> SessionDropped:
+        """The error for the deadline that passed."""
+        now = time.monotonic()
+        if self.request_deadline is not None and now >= self.request_deadline:
+            return SessionDropped(
+                f"request deadline: no session-request within {self.request_timeout:g} s"
+                " of connecting (--request-timeout)"
+            )
+        if self._msg_start is not None and self.message_timeout is not None:
+            if now >= self._msg_start + self.message_timeout:
+                return SessionDropped(
+                    f"message deadline: unfinished {self.message_timeout:g} s after its first byte"
+                    f" ({self.conn.buffered:,} bytes so far; --message-timeout)"
+                )
+        return SessionDropped(f"client silent for {self.idle_timeout:g} s (--idle-timeout)")
+
+    def release_budget(self) -> None:
+        """Give back the bytes of the shared budget this connection holds."""
+        if self._charged:
+            self._budget.release(self._charged)
+            self._charged = 0
 
     def _poll_briefly(self) -> bytes | None:
         """What the client sends within the busy-poll window
@@ -236,7 +315,11 @@ class _Channel:
             view = view[n:]
 
     def close_raw(self) -> None:
-        """Close the dup of the socket (the stream itself is closed apart)."""
+        """Close the dup of the socket (the stream itself is closed apart) and
+        free what is buffered of the client's unfinished message."""
+        self.conn.discard_buffered()
+        self._frames.discard()
+        self.release_budget()
         if self._raw is not None:
             self._raw.close()
             self._raw = None
@@ -296,6 +379,7 @@ class Session:
         self.rounds_used = 0
         self.total_reward = 0.0
         self.status = "open"
+        self.requested = False  # a session-request came
         self._round = _Round(0, counted=False)
         self._episode: Episode | None = None
         self._stop = False  # the environment asked to end the session after this round
@@ -336,9 +420,6 @@ class Session:
         """Play the session; every failure ends this session only."""
         svc = self.services
         svc.open_sessions[self.id] = self
-        if svc.rddlsim_log is not None:
-            host, _, _ = self.peer.rpartition(":")
-            svc.rddlsim_log.client_info("localhost" if host in ("127.0.0.1", "::1") else host, host)
         try:
             await self._play()
             self.status = "finished" if self.status == "open" else self.status
@@ -371,7 +452,15 @@ class Session:
 
     def _drop(self, why: str) -> None:
         self.status = "dropped"
-        log.warning("%s closed: %s", self.describe(), why)
+        notices = self.services.notices
+        # the cause is what the reason says before its first colon
+        kind = why.partition(":")[0]
+        if not self.requested:
+            # never a session: no result, no rddlsim record; counted once repeated
+            cause = f"connections closed before a session-request: {kind}"
+        else:
+            cause = f"sessions closed: {kind}"
+        notices.note(cause, f"{self.describe()} closed: {why}")
         self._end_store("dropped", why)
 
     def _end_store(self, status: str, reason: str | None) -> None:
@@ -406,6 +495,13 @@ class Session:
             raise SessionDropped("the client closed the connection before its session-request")
         if not isinstance(request, SessionRequest):
             raise SessionDropped(f"expected a session-request, got {type(request).__name__}")
+        self.channel.request_deadline = None
+        self.requested = True
+        if svc.rddlsim_log is not None:
+            # rddlsim writes it on accepting; here only for a connection that
+            # asked for a session, so a flood of empty connections writes nothing
+            host, _, _ = self.peer.rpartition(":")
+            svc.rddlsim_log.client_info("localhost" if host in ("127.0.0.1", "::1") else host, host)
         self.client_name = request.client_name
         self.instance_name = request.problem_name
         if request.input_language not in (None, "rddl"):

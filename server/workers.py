@@ -54,6 +54,7 @@ from typing import Any
 import trio
 
 from .config import ServerConfig
+from .limits import BufferBudget, Notices, peer_host
 from .registry import Registry
 
 log = logging.getLogger(__name__)
@@ -71,6 +72,9 @@ STOP_GRACE = 10.0
 # a worker that dies this many times within RESPAWN_WINDOW seconds is not restarted
 MAX_RAPID_DEATHS = 5
 RESPAWN_WINDOW = 60.0
+# seconds the listener waits for a worker to take a connection when every
+# worker's queue of hand-overs is full (overload) before it closes it
+HANDOVER_WAIT = 10.0
 
 
 class WorkerError(RuntimeError):
@@ -132,6 +136,10 @@ class WorkerPool:
         self.workers = [_Worker(i, f"{base}:w{i}") for i in range(n)]
         self.next_id = 0
         self.stopping = False
+        from .app import connection_table
+
+        self.table = connection_table(config)
+        self.notices = Notices(log)
         # the shared count of open sessions: an unlinked temporary file, mapped
         self._count_file = tempfile.TemporaryFile(prefix="ippc-sessions-")
         self._count_file.write(b"\0" * _NUM.size)
@@ -160,6 +168,7 @@ class WorkerPool:
             "stamp": self.stamp,
             "paths": self.paths,
             "config": _config_to_json(self.config),
+            "workers": len(self.workers),
             "log_level": logging.getLogger().getEffectiveLevel(),
         }
         try:
@@ -214,6 +223,8 @@ class WorkerPool:
             code = await self._reap(w)
             lost = sorted(w.open)
             w.open.clear()
+            for sid in lost:
+                self.table.remove(sid)
             self._publish()
             if self.stopping:
                 return
@@ -289,7 +300,9 @@ class WorkerPool:
             if kind == _READY:
                 w.ready.set()
             elif kind == _END and len(msg) == 1 + _NUM.size:
-                w.open.discard(_NUM.unpack_from(msg, 1)[0])
+                sid = _NUM.unpack_from(msg, 1)[0]
+                w.open.discard(sid)
+                self.table.remove(sid)
                 self._publish()
             else:
                 log.error("%r sent an unknown message %r", w, msg[:20])
@@ -351,27 +364,56 @@ class WorkerPool:
 
     async def hand_over(self, sock: trio.socket.SocketType) -> None:
         """Number an accepted connection and pass it to the least busy
-        worker (the connection is closed here either way)."""
-        self.next_id += 1
-        sid = self.next_id
+        worker (the connection is closed here either way). A connection the
+        caps or `--allow` refuse is closed at once, without a number. When
+        every worker's queue of hand-overs is full (overload) the listener
+        waits for one to take it (up to HANDOVER_WAIT), accepting nothing
+        meanwhile: new connections wait in the kernel's backlog."""
         try:
-            for w in sorted(
-                (w for w in self.workers if w.alive and w.ready.is_set()),
-                key=lambda w: (len(w.open), w.index),
-            ):
-                if await self._send(w, sid, sock.fileno()):
-                    w.open.add(sid)
-                    self._publish()
-                    return
-            log.error("session %d: no worker process to play it; connection closed", sid)
+            host = peer_host(sock)
+            refused = self.table.refusal(host)
+            if refused is not None:
+                self.notices.note(*refused)
+                return
+            self.next_id += 1
+            sid = self.next_id
+            deadline = trio.current_time() + HANDOVER_WAIT
+            while True:
+                ready = sorted(
+                    (w for w in self.workers if w.alive and w.ready.is_set()),
+                    key=lambda w: (len(w.open), w.index),
+                )
+                for w in ready:
+                    if await self._send(w, sid, sock.fileno()):
+                        w.open.add(sid)
+                        self.table.add(sid, host)
+                        self._publish()
+                        return
+                if trio.current_time() >= deadline:
+                    break
+                await trio.sleep(0.005)
+            if ready:
+                self.notices.note(
+                    "connections closed: overload, no worker took them in time",
+                    f"session {sid}: overload: no worker took the connection within"
+                    f" {HANDOVER_WAIT:g} s (every worker has a full queue of hand-overs);"
+                    " connection closed",
+                    logging.ERROR,
+                )
+            else:
+                self.notices.note(
+                    "connections closed: no worker process ready",
+                    f"session {sid}: no worker process is ready (every one is"
+                    " restarting or gone); connection closed",
+                    logging.ERROR,
+                )
         finally:
             sock.close()
 
     async def _send(self, w: _Worker, sid: int, fd: int) -> bool:
-        """Pass the connection to `w`; False when it cannot take it now. A
-        worker whose control socket is full (hundreds of hand-overs it has
-        not read: it hangs) is passed over rather than waited for, so one
-        stuck worker never stops the accept loop."""
+        """Pass the connection to `w`; False when it cannot take it now: its
+        queue of hand-overs is full (it is busy, or hangs: one stuck worker
+        never stops the accept loop while another can take the connection)."""
         ctrl = w.ctrl
         if ctrl is None:
             return False
@@ -379,9 +421,12 @@ class WorkerPool:
             socket.send_fds(ctrl, [_START + _NUM.pack(sid)], [fd])  # (EINTR is retried by Python)
             return True
         except BlockingIOError:
-            log.warning("%r does not read its hand-overs; session %d goes elsewhere", w, sid)
+            pass
         except OSError as err:
-            log.warning("%r cannot take session %d: %s", w, sid, err)
+            self.notices.note(
+                f"hand-over failures: {err.strerror or err}",
+                f"{w!r} cannot take session {sid}: {err}",
+            )
         return False
 
 
@@ -410,6 +455,7 @@ async def serve_with_workers(
 
                 nursery.start_soon(_watch_signals, nursery.cancel_scope)
             await nursery.start(pool.run)
+            nursery.start_soon(pool.notices.run)
             for listener in listeners:
                 nursery.start_soon(_accept, listener, pool)
             task_status.started(port)
@@ -424,7 +470,9 @@ async def _accept(listener: trio.SocketListener, pool: WorkerPool) -> None:
         try:
             conn, _ = await sock.accept()
         except OSError as err:  # e.g. too many open files: wait, go on
-            log.error("accept failed: %s", err)
+            pool.notices.note(
+                f"accept failures: {err.strerror or err}", f"accept failed: {err}", logging.ERROR
+            )
             await trio.sleep(0.1)
             continue
         await pool.hand_over(conn)
@@ -467,6 +515,10 @@ async def _worker(
 
     svc = open_services(config, registry, spec["port"], owner=spec["owner"], stamp=spec["stamp"])
     svc.server_open = memoryview(count).cast("q")
+    # the server's budget for unfinished messages, shared out evenly
+    budget = svc.budget = BufferBudget(
+        max(1, config.max_buffered // max(1, spec.get("workers", 1)))
+    )
     ctrl.setblocking(False)
 
     async def play(sid: int, sock: socket.socket) -> None:
@@ -501,15 +553,21 @@ async def _worker(
                     # a hand-over whose descriptor did not arrive (the table is
                     # full): the client sees its connection close; say it ended
                     sid = _NUM.unpack_from(msg, 1)[0]
-                    log.error(
-                        "session %d: its connection did not arrive (too many open files?); dropped",
-                        sid,
+                    svc.notices.note(
+                        "connections lost: their descriptor did not arrive (open-file limit?)",
+                        f"session {sid}: its connection did not arrive"
+                        " (the worker's open-file limit?); dropped",
+                        logging.ERROR,
                     )
                     _tell(ctrl, _END + _NUM.pack(sid))
                 else:
                     log.error("unexpected message from the main process %r", msg[:20])
                 continue
             sessions.start_soon(play, _NUM.unpack_from(msg, 1)[0], socks[0])
+            # one new connection per pass of the scheduler: a flood of them
+            # waits in this socket (then in the listener's backlog) while the
+            # sessions in progress take their turns
+            await trio.lowlevel.checkpoint()
 
     async def on_signal(signals: Any, scope: trio.CancelScope) -> None:
         # every signal until the end: a second one (the terminal's SIGINT and
@@ -522,6 +580,8 @@ async def _worker(
         try:
             async with trio.open_nursery() as top:
                 top.start_soon(on_signal, signals, top.cancel_scope)
+                top.start_soon(svc.notices.run)
+                top.start_soon(budget.run)
                 async with trio.open_nursery() as sessions:
                     sessions.start_soon(take_sessions, sessions)
                 top.cancel_scope.cancel()  # no more sessions to come or to end
@@ -554,6 +614,7 @@ def _config_from_json(data: dict[str, Any]) -> ServerConfig:
     fields: dict[str, Any] = {
         k: (Path(v) if k in paths and v is not None else v) for k, v in data.items()
     }
+    fields["allow"] = tuple(fields.get("allow", ()))
     return ServerConfig(**fields)
 
 
