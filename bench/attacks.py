@@ -374,7 +374,7 @@ def start_rddlsim(classpath: str, rddl: Path, folder: Path, nofile: int) -> tupl
     port = free_port()
     log = folder / "rddlsim.out"
     proc = subprocess.Popen(
-        ["java", "-Xmx4g", "-cp", classpath, "rddl.competition.Server"]
+        ["java", "-Xmx2g", "-cp", classpath, "rddl.competition.Server"]
         + [str(rddl), str(port), "1000000", "0", "0", "0"],
         stdout=open(log, "w"),
         stderr=subprocess.STDOUT,

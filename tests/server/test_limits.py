@@ -511,3 +511,35 @@ def test_workers_an_overloaded_worker_makes_the_listener_wait_not_drop(
     text = "\n".join(messages(caplog))
     assert "overload: no worker took the connection within 1 s" in text
     assert "no worker process is ready" not in text
+
+
+@pytest.mark.alone
+@pytest.mark.trio
+async def test_a_session_in_progress_plays_on_through_a_connection_flood(caplog) -> None:
+    """400 connections opened and closed back to back while a session
+    plays: it gets all its turns, and the log has a few lines, not 400."""
+    caplog.set_level(logging.INFO)
+    async with running_server(cfg(rounds=3)) as (port, svc):
+        quiet = await noop_session(port, client="quiet")
+        flooded = 0
+
+        async def flood() -> None:
+            nonlocal flooded
+            for _ in range(400):
+                s = await trio.open_tcp_stream("127.0.0.1", port)
+                await s.aclose()
+                flooded += 1
+
+        with trio.fail_after(60):
+            async with trio.open_nursery() as n:
+                n.start_soon(flood)
+                result = await noop_session(port, client="healthy")
+            cause = (
+                "connections closed before a session-request:"
+                " the client closed the connection before its session-request"
+            )
+            while svc.notices.totals[cause] < 400:
+                await trio.sleep(0.01)
+    assert len(result["rounds"]) == 3 and len(result["states"]) == len(quiet["states"])
+    assert flooded == 400
+    assert len(caplog.records) < 20
