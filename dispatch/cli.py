@@ -48,6 +48,16 @@ def print_report(report: RunReport) -> None:
         f"{report.failed_actions} failed action(s), planning {report.planning_seconds:.3f} s, "
         f"execution {report.execution_seconds:.1f} s"
     )
+    for g in report.goals:
+        click.echo(
+            f"goal {g['goal']}: {'reached' if g['reached'] else 'not reached'} in {g['turns']} turns, "
+            f"{g['actions']} action(s), {g['failed_actions']} failed"
+        )
+    if len(report.sessions) > 1 or report.planner_restarts:
+        click.echo(
+            f"sessions: {', '.join(report.sessions) or 'none'}; planner restarts: "
+            f"{report.planner_restarts}"
+        )
     if report.planner_error:
         click.echo(f"planner: {report.planner_error}", err=True)
 
@@ -138,6 +148,11 @@ def print_report(report: RunReport) -> None:
     help="Warn, naming the handler, when the event loop is blocked this many seconds; 0 = off.",
 )
 @click.option(
+    "--serve-goals",
+    is_flag=True,
+    help="Serve goals until stopped: each goal set at run time (kb.set_goal) gets a session; implies --on-planner-loss wait.",
+)
+@click.option(
     "--fresh",
     is_flag=True,
     help="Start from the instance's initial state, not from the facts journaled in --db.",
@@ -187,6 +202,7 @@ def main(
     on_planner_loss: str,
     planner_silence: float | None,
     watchdog: float,
+    serve_goals: bool,
     fresh: bool,
     db: Path | None,
     json_out: Path | None,
@@ -231,6 +247,11 @@ def main(
     if db is not None:
         _check_db(db)
     if simulate:
+        if serve_goals:
+            raise click.BadParameter(
+                "goals are served to a robot (the simulated world plays one goal)",
+                param_hint="--serve-goals",
+            )
         if sensing_path is not None or robot_file is not None:
             raise click.BadParameter(
                 "the simulated world senses and executes itself", param_hint="--simulate"
@@ -270,6 +291,7 @@ def main(
             link=LinkPolicy(reconnect=on_planner_loss == "wait", silence=planner_silence),
             watchdog=watchdog or None,
             resume=not fresh,
+            serve_goals=serve_goals,
         )
     print_report(report)
     if json_out is not None:
@@ -363,6 +385,7 @@ def _robot(
                 handle_signals=True,
                 journal=True,
                 resume=opts["resume"],
+                serve_goals=opts["serve_goals"],
             )
         )
     except BaseException as exc:  # trio hands some errors over in exception groups

@@ -49,7 +49,7 @@ from typing import Any
 import numpy as np
 import trio
 
-from ..kb import KnowledgeBase, Update
+from ..kb import KBError, KnowledgeBase, Update
 from ..protocol import Actions, ObservedFluentsWriter
 from ..rddl import ast as A
 from ..rddl.model import DERIVED, INTERM, STATE, Model, PVariable, Value
@@ -416,11 +416,20 @@ class DispatchEpisode(Episode):
         next_all, reward = d.model_step(state, legal, self.rng)
         expected = next_all if succeeded == legal else d.model_step(state, succeeded, self.rng)[0]
         applied = 0
+        refused_effects: str | None = None
         if expected is not None:
             writable = [n for n in sorted(d.draw_free) if not d.kb.is_sensed(n)]
             updates = d.changes(state, expected, writable)
             if updates:
-                applied = len(d.kb.apply(updates, SOURCE))
+                try:
+                    applied = len(d.kb.apply(updates, SOURCE))
+                except KBError as err:
+                    # the state moved on while the actions ran (sensing, a
+                    # client) and the effects no longer fit it (a state
+                    # invariant): nothing is written, the next turn is
+                    # planned from what the knowledge base holds
+                    refused_effects = str(err)
+                    log.warning("turn %d: the actions' effects refused: %s", self.turn_num, err)
         sensed = 0
         if d.sensing is not None:
             sensed = len(await d.sensing.settle(d.settle_limit))
@@ -454,6 +463,8 @@ class DispatchEpisode(Episode):
         }
         if extra:
             record["ignored"] = extra
+        if refused_effects is not None:
+            record["effects_refused"] = refused_effects
         if contradictions:
             record["contradictions"] = contradictions
             stats.contradictions += len(contradictions)

@@ -1,13 +1,14 @@
 """The knowledge base's journal in the result store: what a restarted
 rddl-dispatch resumes from.
 
-`KBJournal` subscribes to a knowledge base and writes every batch that
-changed something to the result store (`ResultStore.record_kb_batch`: the
+`KBJournal` subscribes to a knowledge base's journal
+(`KnowledgeBase.subscribe_journal`) and writes every batch that changed
+something, and every change of its goal, to the result store (`ResultStore.record_kb_batch`: the
 batch in `kb_batches`, the latest value of each grounding in `kb_facts`,
 one transaction, committed before the subscriber returns). `start()`
 first journals the whole state as it is (source "start"). `restore()`
-applies the facts journaled for the instance, in one batch (source
-"journal"), before the dispatcher serves its first turn: the process
+applies the facts journaled for the instance and the last goal set at run
+time, in one batch (`KnowledgeBase.restore`, source "journal"), before the dispatcher serves its first turn: the process
 goes on from what it knew, not from the instance's initial state. A saved
 fact the knowledge base refuses (the domain changed since: a fluent or an
 object that is gone) is logged and left out; the others are restored.
@@ -42,19 +43,38 @@ class KBJournal:
         self._unsubscribe: Callable[[], None] | None = None
 
     def restore(self) -> int:
-        """Apply the journaled facts; how many groundings they changed."""
+        """Apply the journaled facts (and the goal, when a goal change was
+        journaled) in one batch; how many groundings they changed."""
         facts = self.store.kb_facts(self.instance)
-        if not facts:
+        has_goal, goal = self.store.kb_goal(self.instance)
+        if not facts and not has_goal:
             return 0
-        updates = [Update("set", fluent, tuple(args), value) for fluent, args, value in facts]
+        saved: dict[str, Any] = {
+            "facts": [{"fluent": f, "args": list(a), "value": v} for f, a, v in facts]
+        }
+        if has_goal:
+            saved["goal"] = goal
         try:
-            changed = len(self.kb.apply(updates, SOURCE))
-        except KBError:
+            changed = len(self.kb.restore(saved, SOURCE))
+        except KBError as err:
+            log.warning(
+                "journal of %s: the saved knowledge as a whole is refused (%s); "
+                "restoring it fact by fact",
+                self.instance,
+                err,
+            )
+            updates = [Update("set", f, tuple(a), v) for f, a, v in facts]
             changed = self._one_by_one(updates)
+            if has_goal:
+                try:
+                    self.kb.restore({"goal": goal}, SOURCE)
+                except KBError as goal_err:
+                    log.warning("journal of %s: saved goal left out: %s", self.instance, goal_err)
         log.info(
-            "knowledge base of %s resumed from the journal: %d saved fact(s), %d changed",
+            "knowledge base of %s resumed from the journal: %d saved fact(s)%s, %d changed",
             self.instance,
             len(facts),
+            " and its goal" if has_goal else "",
             changed,
         )
         return changed
@@ -75,26 +95,39 @@ class KBJournal:
         if self._unsubscribe is None:
             facts = [(f, tuple(a), v) for (f, a), v in self.kb.facts().items()]
             self.store.record_kb_batch(self.instance, "start", facts, time.time())
-            self._unsubscribe = self.kb.subscribe(self._record)
+            self._unsubscribe = self.kb.subscribe_journal(self._record)
 
     def stop(self) -> None:
         if self._unsubscribe is not None:
             self._unsubscribe()
             self._unsubscribe = None
 
-    def _record(self, changes: Sequence[Any], source: str) -> None:
+    def _record(self, entry: dict[str, Any]) -> None:
+        """One journal entry of the knowledge base (a batch, or a goal
+        change), written at once (the knowledge base calls this under its
+        lock, so entries are stored in the order they happened)."""
         try:
-            self.store.record_kb_batch(
-                self.instance,
-                source,
-                [(c.fluent, tuple(c.args), c.new) for c in changes],
-                time.time(),
-            )
+            if "goal" in entry:
+                self.store.record_kb_batch(
+                    self.instance,
+                    entry["source"],
+                    [],
+                    time.time(),
+                    goal=entry["goal"],
+                    goal_changed=True,
+                )
+            else:
+                self.store.record_kb_batch(
+                    self.instance,
+                    entry["source"],
+                    [(c["fluent"], tuple(c["args"]), c["new"]) for c in entry["changes"]],
+                    time.time(),
+                )
         except Exception as err:  # noqa: BLE001 - a full disk must not stop the robot
             self.failures += 1
             if self.failures == 1 or self.failures % 1000 == 0:
                 log.error(
-                    "journal of %s: the result store refused a batch (%d so far): %s",
+                    "journal of %s: the result store refused an entry (%d so far): %s",
                     self.instance,
                     self.failures,
                     err,

@@ -103,6 +103,7 @@ class RunReport:
     facts: list[list[Any]] = field(default_factory=list)  # the final knowledge, not-false
     journaled: int | None = None  # batches journaled in the result store
     executed_total: int | None = None  # actions over the run (`executed` keeps the last ones)
+    goals: list[dict[str, Any]] = field(default_factory=list)  # served goals' outcomes
 
     @property
     def success(self) -> bool:
@@ -136,6 +137,7 @@ class RunReport:
             if self.executed_total is not None
             else len(self.executed),
             "facts": self.facts,
+            "goals": self.goals,
         }
 
     def plan_lines(self) -> list[str]:
@@ -303,6 +305,9 @@ class _Run:
         self.turns_at_attempt = 0
 
         self.planner_done = trio.Event()
+        self.serving = False  # serve goals until stopped
+        self.goals: list[dict[str, Any]] = []  # each served goal's outcome
+        self.goal: dict[str, Any] | None = None  # the goal being served
 
     def session_over(self, status: str | None) -> None:
         """A session ended with `status` (None: the run ends without one)."""
@@ -329,6 +334,8 @@ async def dispatch_session(
     handle_signals: bool = False,
     journal: bool = False,
     resume: bool = True,
+    serve_goals: bool = False,
+    stop: trio.Event | None = None,
 ) -> RunReport:
     """Serve `dispatcher`, start the planner once it listens (none: wait
     for one to connect), play until a session ends (with `link.reconnect`,
@@ -345,13 +352,23 @@ async def dispatch_session(
     the session as `interrupted` and return the report (its `interrupted`
     names the signal). With `journal` and a result store (`config.db`),
     every batch applied to the knowledge base is journaled there and, with
-    `resume`, the facts journaled for this instance are restored first."""
+    `resume`, the facts journaled for this instance are restored first.
+    With `serve_goals`, the run goes on until cancelled (or a signal):
+    whenever the knowledge base has a goal that does not hold (set at run
+    time with `kb.set_goal`, over the socket or from Python), a session
+    serves it (the planner is started again for each); each goal's outcome
+    is in the report's `goals`. A goal the session's rounds did not reach
+    is recorded and served again while it does not hold. Setting `stop`
+    ends the run as a signal does (`interrupted` is then "stop")."""
     started = time.perf_counter()
     link = link or LinkPolicy()
     config = dataclasses.replace(
         config, individual_session=True, idle_timeout=link.idle_timeout(config)
     )
     run = _Run()
+    if serve_goals:
+        run.serving = True
+        link = dataclasses.replace(link, reconnect=True)
     svc = open_services(config, dispatcher, config.port)
     kb_journal: KBJournal | None = None
     if journal and svc.store is not None:
@@ -363,6 +380,18 @@ async def dispatch_session(
         async with trio.open_nursery() as nursery:
             if handle_signals:
                 nursery.start_soon(_watch_signals, run, nursery.cancel_scope)
+            if stop is not None:
+
+                async def stopper(event: trio.Event = stop) -> None:
+                    await event.wait()
+                    log.warning(
+                        "stop: cancelling the current action, closing the session as interrupted"
+                    )
+                    run.interrupted = "stop"
+                    run.over = True
+                    nursery.cancel_scope.cancel()
+
+                nursery.start_soon(stopper)
             if watchdog is not None and watchdog > 0:
                 handlers = dispatcher.handlers
                 dog = LoopWatchdog(watchdog, lambda: ", ".join(list(handlers.running.values())))
@@ -460,6 +489,7 @@ async def dispatch_session(
         facts=final_facts(dispatcher.kb),
         journaled=kb_journal.batches if kb_journal is not None else None,
         executed_total=stats.executed_total,
+        goals=list(run.goals),
     )
 
 
@@ -506,9 +536,17 @@ async def _sessions(
             nursery.start_soon(accept_loop, listener)
         task_status.started(port)
         while not run.over:
+            if run.serving and run.goal is None:
+                await _next_goal(dispatcher, run)
             stream = await receive.receive()
             session = await play_connection(svc, stream)
             status = session.status if session.status != "open" else "dropped"
+            if run.serving:
+                _served(dispatcher, run, status)
+                if status == "dropped" and run.attempt is not None:
+                    run.attempt.cancel()
+                run.session_over(status)
+                continue
             if status != "dropped" or not link.reconnect:
                 run.over = True
             else:
@@ -522,6 +560,90 @@ async def _sessions(
                     run.attempt.cancel()  # a hung planner the dispatcher started: stop it
             run.session_over(status)
         nursery.cancel_scope.cancel()
+
+
+def _goal_text(kb: KnowledgeBase) -> str | None:
+    goal = kb.goal()
+    if goal is None:
+        return None
+    return goal.text or " ^ ".join(str(f) for f in goal.facts) or goal.fluent
+
+
+async def _next_goal(dispatcher: Dispatcher, run: _Run) -> None:
+    """Wait until the knowledge base has a goal that does not hold (a new
+    one set at run time, or the state changed under the old one), and start
+    serving it."""
+    kb = dispatcher.kb
+    token = trio.lowlevel.current_trio_token()
+    wake = trio.Event()
+
+    def poke(*_: Any) -> None:  # from any thread that changed the knowledge base
+        try:
+            token.run_sync_soon(wake.set)
+        except trio.RunFinishedError:
+            pass
+
+    unsubscribe = [kb.subscribe(poke), kb.subscribe_goal(poke)]
+    try:
+        waited = False
+        while not (kb.goal() is not None and kb.goal_holds() is False):
+            if not waited:
+                log.info("serving goals: waiting for a goal that does not hold yet (kb.set_goal)")
+                waited = True
+            await wake.wait()
+            wake = trio.Event()
+    finally:
+        for stop in unsubscribe:
+            stop()
+    goal = kb.goal()
+    stats = dispatcher.stats
+    stats.goal_reached = False
+    run.goal = {
+        "goal": _goal_text(kb),
+        "version": goal.version if goal is not None else None,
+        "reached": False,
+        "sessions": [],
+        "turns": 0,
+        "actions": 0,
+        "failed_actions": 0,
+        "_turns0": stats.turns,
+        "_actions0": stats.executed_total,
+        "_failed0": stats.failed_actions,
+        "_t0": time.time(),
+    }
+    log.info("serving goal %s (version %s)", run.goal["goal"], run.goal["version"])
+
+
+def _served(dispatcher: Dispatcher, run: _Run, status: str) -> None:
+    """A session of the goal being served ended: its outcome, once the goal
+    is reached or the session played out (a dropped one is tried again)."""
+    goal = run.goal
+    if goal is None:
+        return
+    stats = dispatcher.stats
+    goal["sessions"].append(status)
+    if status == "dropped":
+        return
+    reached = bool(stats.goal_reached or dispatcher.kb.goal_holds())
+    outcome = {k: v for k, v in goal.items() if not k.startswith("_")}
+    outcome.update(
+        reached=reached,
+        turns=stats.turns - goal["_turns0"],
+        actions=stats.executed_total - goal["_actions0"],
+        failed_actions=stats.failed_actions - goal["_failed0"],
+        seconds=round(time.time() - goal["_t0"], 3),
+    )
+    run.goals.append(outcome)
+    run.goal = None
+    log.info(
+        "goal %s %s: %d turns, %d actions (%d failed), %d session(s)",
+        outcome["goal"],
+        "reached" if reached else "not reached (it is served again while it does not hold)",
+        outcome["turns"],
+        outcome["actions"],
+        outcome["failed_actions"],
+        len(outcome["sessions"]),
+    )
 
 
 async def _planner_loop(
@@ -589,6 +711,13 @@ async def _play_planner(
             return
         if dispatcher.stats.turns > turns:
             delay = link.restart_delay  # it played: start again at once-ish
+        if run.serving:
+            # serving goals: a planner for the goal being served, or the next one
+            while run.goal is None and not run.over:
+                await trio.sleep(0.05)
+            if error is None:  # its session played out
+                delay = link.restart_delay
+                continue
         run.restarts += 1
         log.warning(
             "planner %s ended (%s): starting it again in %g s",

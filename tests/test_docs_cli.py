@@ -7,6 +7,8 @@ import re
 import click
 import pytest
 from ippc.client.cli import main as client_main
+from ippc.dispatch.cli import main as dispatch_main
+from ippc.kb.cli import main as kb_main
 from ippc.rddl.cli import main as rddl_main
 from ippc.server.cli import main as server_main
 
@@ -17,6 +19,8 @@ PAGE = REPO / "docs" / "cli.md"
 COMMANDS: dict[str, click.Command] = {
     "rddl-server": server_main,
     "rddl-client": client_main,
+    "rddl-dispatch": dispatch_main,
+    "rddl-kb": kb_main,
     **{f"rddl {name}": cmd for name, cmd in rddl_main.commands.items()},
 }
 

@@ -177,11 +177,11 @@ async def test_the_watchdog_names_the_handler_that_blocks_the_loop(
     handlers = Handlers()
 
     async def blocking(d: Dispatch) -> Status:
-        time.sleep(0.6)
+        time.sleep(2.0)
         return Status.SUCCEEDED
 
     handlers.register("pickup", blocking)
-    dog = LoopWatchdog(0.2, lambda: ", ".join(handlers.running.values()), period=0.05)
+    dog = LoopWatchdog(0.5, lambda: ", ".join(handlers.running.values()), period=0.05)
     with caplog.at_level(logging.WARNING, logger="ippc.dispatch.watchdog"):
         async with trio.open_nursery() as nursery:
             await nursery.start(dog.run)
@@ -190,14 +190,15 @@ async def test_the_watchdog_names_the_handler_that_blocks_the_loop(
             await trio.sleep(0.2)  # the loop runs again: the watchdog says so
             nursery.cancel_scope.cancel()
     blocked = [r.getMessage() for r in caplog.records if "has been blocked" in r.getMessage()]
-    assert len(blocked) == 1 and dog.blocked == 1
-    assert "the handler of pickup(r1)" in blocked[0] and "test_handlers.py" in blocked[0]
+    # one warning for the handler's block (a loaded machine may add a stall of its own)
+    named = [m for m in blocked if "the handler of pickup(r1)" in m]
+    assert len(named) == 1 and "test_handlers.py" in named[0] and dog.blocked >= 1
     assert any("running again" in r.getMessage() for r in caplog.records)
 
 
 @pytest.mark.trio
 async def test_the_watchdog_is_quiet_while_the_loop_runs(caplog: pytest.LogCaptureFixture) -> None:
-    dog = LoopWatchdog(0.2, period=0.05)
+    dog = LoopWatchdog(1.0, period=0.05)
     with caplog.at_level(logging.WARNING, logger="ippc.dispatch.watchdog"):
         async with trio.open_nursery() as nursery:
             await nursery.start(dog.run)

@@ -255,3 +255,142 @@ def test_the_journal_skips_a_saved_fact_the_domain_no_longer_has(tmp_path: Path)
         journal = KBJournal(kb, store, "courier_one")
         assert journal.restore() == 1
         assert kb.get("holding", ("r1",)) is True
+
+
+def test_serving_goals_delivers_parcel_after_parcel_in_one_process(tmp_path: Path) -> None:
+    kb = KnowledgeBase.from_files(DOMAIN, ONE)
+    kb.apply([Update.set("present", ("office",), True)], "camera")
+    robot, dispatcher = courier(kb)
+    stop = trio.Event()
+    db = tmp_path / "g.db"
+
+    def finished_sessions() -> int:
+        """How many sessions (one per goal here) the store has as finished."""
+        with ResultStore(db) as store:
+            return sum(1 for s in store.sessions() if s["status"] == "finished")
+
+    async def operator() -> None:
+        """Gives the next goal each time one is reached: a new parcel under the
+        domain's goal, then 'hold it' set at run time, then the domain's goal."""
+
+        async def reached(n: int) -> None:
+            while finished_sessions() < n:
+                await trio.sleep(0.02)
+
+        await reached(1)
+        kb.apply(
+            [
+                Update.set("delivered", (), False),
+                Update.set("goal", (), False),
+                Update.set("holding", ("r1",), False),
+            ],
+            "operator",
+        )
+        kb.set_goal("holding(r1)", "operator")
+        await reached(2)
+        kb.reset_goal("operator")
+        await reached(3)
+        stop.set()
+
+    box: list[RunReport] = []
+
+    async def main() -> None:
+        with trio.fail_after(120):
+            async with trio.open_nursery() as nursery:
+                nursery.start_soon(operator)
+                box.append(
+                    await dispatch_session(
+                        dispatcher,
+                        PlannerSpec("exact"),
+                        server_config(rounds=1, db=db),
+                        planner_timeout=60.0,
+                        link=LinkPolicy(restart_delay=0.05),
+                        journal=True,
+                        serve_goals=True,
+                        stop=stop,
+                    )
+                )
+
+    trio.run(main)
+    (report,) = box
+    assert report.interrupted == "stop"
+    assert [g["reached"] for g in report.goals] == [True, True, True]
+    assert [g["goal"] for g in report.goals] == ["delivered", "holding(r1)", "delivered"]
+    assert [g["sessions"] for g in report.goals] == [["finished"]] * 3
+    plan = [e["action"] for e in report.executed]
+    assert plan[:5] == [
+        "move(r1,hall,office)",
+        "pickup(r1)",
+        "move(r1,office,hall)",
+        "move(r1,hall,lab)",
+        "drop(r1)",
+    ]
+    # the second goal ends at the pickup, the third at the drop in the lab
+    assert plan[5:] == [
+        "move(r1,lab,hall)",
+        "move(r1,hall,office)",
+        "pickup(r1)",
+        "move(r1,office,hall)",
+        "move(r1,hall,lab)",
+        "drop(r1)",
+    ]
+    assert [g["turns"] for g in report.goals] == [5, 3, 3]
+    with ResultStore(db) as store:
+        assert store.kb_goal("courier_one") == (True, None)  # the reset is journaled
+
+
+def test_effects_that_break_an_invariant_are_refused_and_the_run_goes_on(tmp_path: Path) -> None:
+    kb = KnowledgeBase.from_files(DOMAIN, ONE)
+    robot, dispatcher = build_robot(kb, None, action_timeout=5.0, settle_limit=0.0)
+
+    @robot.handler("move")
+    async def teleport(d: Dispatch) -> Status:
+        # the robot's own localisation writes where it ended up: the lab
+        kb.apply(
+            [
+                Update.set("robot-at", ("r1", "hall"), False),
+                Update.set("robot-at", ("r1", "lab"), True),
+            ],
+            "localisation",
+        )
+        return Status.SUCCEEDED
+
+    @robot.handler("*")
+    async def ok(d: Dispatch) -> Status:
+        return Status.SUCCEEDED
+
+    db = tmp_path / "e.db"
+
+    async def main() -> RunReport:
+        with trio.fail_after(60):
+            return await dispatch_session(
+                dispatcher,
+                PlannerSpec("exact"),
+                server_config(rounds=1, db=db),
+                planner_timeout=30.0,
+            )
+
+    report = trio.run(main)
+    assert report.session_status == "finished"
+    # the model's effect (robot-at office) would have put the robot in two rooms
+    assert kb.get("robot-at", ("r1", "office")) is False and kb.get("robot-at", ("r1", "lab"))
+    with ResultStore(db) as store:
+        (session,) = store.sessions()
+        first = store.steps(store.rounds(session["id"])[0]["id"])[0]
+    assert "effects_refused" in first["outcome"]
+    assert "invariant" in first["outcome"]["effects_refused"]
+
+
+def test_the_journal_restores_a_goal_set_at_run_time(tmp_path: Path) -> None:
+    with ResultStore(tmp_path / "k.db") as store:
+        kb = KnowledgeBase.from_files(DOMAIN, ONE)
+        journal = KBJournal(kb, store, "courier_one")
+        journal.start()
+        kb.set_goal("holding(r1)", "operator")
+        kb.apply([Update.set("present", ("office",), True)], "camera")
+        journal.stop()
+        again = KnowledgeBase.from_files(DOMAIN, ONE)
+        KBJournal(again, store, "courier_one").restore()
+        goal = again.goal()
+        assert goal is not None and goal.text == "holding(r1)"
+        assert again.get("present", ("office",)) is True
