@@ -378,6 +378,10 @@ async def dispatch_session(
         kb_journal.start()
     try:
         async with trio.open_nursery() as nursery:
+            # warnings about the planner's sessions, counted per cause (rddl-server's)
+            nursery.start_soon(svc.notices.run)
+            if svc.budget is not None:  # frees the readers' buffers of ended sessions
+                nursery.start_soon(svc.budget.run)
             if handle_signals:
                 nursery.start_soon(_watch_signals, run, nursery.cancel_scope)
             if stop is not None:
