@@ -29,6 +29,9 @@ OPTIONS: dict[str, str] = {
     "step over all the steps left (default yes; else as the rewards it saw)",
     "trial_depth": "most decision levels a trial descends through nodes already in the "
     "tree before it backs up the value of the node it reached (default 10; 0: no limit)",
+    "new_nodes": "new decision nodes a trial may reach in one wave: it stops at the first new "
+    "node, and after that node is expanded with the others of the wave goes on below it, "
+    "this many times (PROST's -ndn; default 1; 0: as deep as trial_depth allows)",
     "rollout_policy": "policy after a leaf's first action: random (uniform legal joint "
     "actions), noop, or best (both; the better mean counts) (default best)",
     "init_weight": "visits the heuristic estimate of a new action counts as (default 1)",
@@ -73,6 +76,7 @@ class Settings:
     batch: int = 1024
     rollouts: int = 1
     trial_depth: int = 10
+    new_nodes: int = 1
     extrapolate: bool = True
     rollout_policy: str = "best"
     init_weight: float = 1.0
@@ -126,6 +130,7 @@ def read_settings(planner: Planner) -> Settings:
         batch=whole("batch", 1024, 1),
         rollouts=whole("rollouts", 1, 1),
         trial_depth=whole("trial_depth", 10, 0),
+        new_nodes=whole("new_nodes", 1, 0),
         extrapolate=planner.bool_option("extrapolate", True),
         rollout_policy=policy,
         init_weight=number("init_weight", 1.0, minimum=1e-9),

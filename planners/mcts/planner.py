@@ -9,6 +9,7 @@ candidates and rollout actions.
 
 from __future__ import annotations
 
+import gc
 import logging
 import time
 from typing import ClassVar
@@ -23,7 +24,7 @@ from .actions import ActionChooser, ActionLibrary, _row_keys
 from .deadline import Deadline
 from .heuristic import IDS, RewardLocks, training_states
 from .options import OPTIONS, Settings, read_settings
-from .rollouts import Expander
+from .rollouts import Expander, _stack_states
 from .stats import SearchStats
 from .tree import _Node, _Outcome, _Trial, backup, best, refresh, select
 
@@ -198,6 +199,12 @@ class MCTSPlanner(Planner):
         root, reused = self._make_root(obs, lookahead)
         turn.reused = int(reused)
         clock = Deadline(None if st.iterations is not None else deadline)
+        # The cyclic collector's full passes walk the whole search graph (a
+        # pause of a second on a big tree): none during the turn. The graph
+        # holds no cycles, so reference counting frees what it drops; the
+        # collector runs again between turns.
+        collecting = gc.isenabled()
+        gc.disable()
         try:
             if not root.expanded:
                 self._expand([root], turn, clock)
@@ -209,6 +216,9 @@ class MCTSPlanner(Planner):
             # parameters by some action) must not end the session: act on what
             # is known.
             log.warning("mcts: search stopped at turn %d: %s", obs.turn, err)
+        finally:
+            if collecting:
+                gc.enable()
         if len(root.acts) == 0:
             log.warning(
                 "mcts: turn %d: no legal joint action in this state; sending noop", obs.turn
@@ -378,62 +388,78 @@ class MCTSPlanner(Planner):
         trials = [_Trial([], root, int(r)) for r in rows]
         active = list(range(n_trials))
         touched: list[_Node] = []
-        leaves: dict[int, _Node] = {}
-        level = 0
-        while active:
-            clock.tick()
-            if level > 0 and clock.passed():
+        st = self.settings
+        levels = [0] * n_trials  # levels each trial has descended
+        phases = st.new_nodes or st.trial_depth or (root.steps + 1)
+        for phase in range(phases):
+            leaves: dict[int, _Node] = {}
+            stopped: list[int] = []  # trials that stopped at a new leaf
+            first = True
+            while active:
+                clock.tick()
+                if (phase > 0 or not first) and clock.passed():
+                    break
+                first = False
+                choices = []
+                acts = np.empty(len(active), dtype=np.int64)
+                for j, i in enumerate(active):
+                    node = trials[i].node
+                    if not any(node.pending):
+                        touched.append(node)
+                    a = select(node, st.exploration, st.init_weight)
+                    choices.append(a)
+                    acts[j] = node.acts[a]
+                out = sim.step(states, self.library.take(acts), self.rng, check=False)
+                turn.sim_steps += len(active)
+                turn.sim_calls += 1
+                keys = self._state_keys(out.next_state)
+                reward = out.reward.tolist()
+                done = out.done.tolist()
+                going: list[int] = []
+                going_rows: list[int] = []
+                for j, i in enumerate(active):
+                    trial = trials[i]
+                    node = trial.node
+                    a = choices[j]
+                    outcomes = node.children[a]
+                    outcome = outcomes.get(keys[j])
+                    if outcome is None:
+                        outcome = outcomes[keys[j]] = _Outcome(
+                            self._node(keys[j], out.next_state, j, node.steps - 1, bool(done[j]))
+                        )
+                    trial.path.append((node, a, outcome, float(reward[j])))
+                    child = outcome.node
+                    trial.node = child
+                    levels[i] += 1
+                    if child.terminal:
+                        continue
+                    if not child.expanded:
+                        leaves[id(child)] = child
+                        stopped.append(i)
+                        continue
+                    if levels[i] == st.trial_depth:
+                        continue  # backs up the value the node has
+                    going.append(i)
+                    going_rows.append(j)
+                active = going
+                if going:
+                    states = out.next_state[np.asarray(going_rows)]
+            if not leaves:
                 break
-            level += 1
-            choices = []
-            acts = np.empty(len(active), dtype=np.int64)
-            for j, i in enumerate(active):
-                node = trials[i].node
-                if not any(node.pending):
-                    touched.append(node)
-                a = select(node, self.settings.exploration, self.settings.init_weight)
-                choices.append(a)
-                acts[j] = node.acts[a]
-            out = sim.step(states, self.library.take(acts), self.rng, check=False)
-            turn.sim_steps += len(active)
-            turn.sim_calls += 1
-            keys = self._state_keys(out.next_state)
-            reward = out.reward.tolist()
-            done = out.done.tolist()
-            going: list[int] = []
-            going_rows: list[int] = []
-            for j, i in enumerate(active):
-                trial = trials[i]
-                node = trial.node
-                a = choices[j]
-                outcomes = node.children[a]
-                outcome = outcomes.get(keys[j])
-                if outcome is None:
-                    outcome = outcomes[keys[j]] = _Outcome(
-                        self._node(keys[j], out.next_state, j, node.steps - 1, bool(done[j]))
-                    )
-                trial.path.append((node, a, outcome, float(reward[j])))
-                child = outcome.node
-                trial.node = child
-                if child.terminal:
-                    continue
-                if not child.expanded:
-                    leaves[id(child)] = child
-                    continue
-                if level == self.settings.trial_depth:
-                    continue  # backs up the value the node has
-                going.append(i)
-                going_rows.append(j)
-            active = going
-            if going:
-                states = out.next_state[np.asarray(going_rows)]
-        for node in touched:
-            node.pending = [0] * len(node.pending)
-        if leaves:
             clock.restart()
             self._expand(list(leaves.values()), turn, clock)
+            # (with `new_nodes` above 1) the trials go on below the leaves
+            # they stopped at, now expanded, as PROST's trials do through
+            # that many new decision nodes
+            active = [
+                i for i in stopped if not trials[i].node.terminal and levels[i] != st.trial_depth
+            ]
+            if not active or phase + 1 == phases or clock.passed(2.0):
+                break
+            states = _stack_states([trials[i].node.states for i in active], self._state_names)
+        for node in touched:
+            node.pending = [0] * len(node.pending)
         gamma = self._discount()
-        st = self.settings
         t0 = time.monotonic()
         for trial in trials:
             backup(trial, gamma, st.init_weight, st.bellman_outcomes)

@@ -126,3 +126,24 @@ def test_a_reward_lock_is_solved_at_once(models: dict[str, Model], locks: str) -
     else:
         assert len(root.acts) == 3 and not root.terminal
         assert planner.last_turn.locks == 0 and planner.last_turn.trials > 0
+
+
+@pytest.mark.parametrize(("new_nodes", "deepest"), [("1", 1), ("3", 3), ("0", 6)])
+def test_new_nodes_lets_a_trial_go_on_below_the_leaf_it_expanded(
+    models: dict[str, Model], new_nodes: str, deepest: int
+) -> None:
+    """One wave: a trial stops at the first new node; with `new_nodes` k it
+    goes on below it once it is expanded, through k new nodes in all (0:
+    down to `trial_depth`), so the tree grows that many levels a wave."""
+    model = models["tiny_trap_inst"]
+    planner, sim = planner_on(
+        model, new_nodes=new_nodes, trial_depth="6", iterations="1", batch="8", seed="1"
+    )
+    planner.act(observe(sim, sim.initial_state(1), 1, 10))
+    expanded = [
+        10 - steps
+        for steps, bucket in planner._table.items()
+        for node in bucket.values()
+        if node.expanded and steps < 10
+    ]
+    assert max(expanded) == deepest
