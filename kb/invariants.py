@@ -125,6 +125,10 @@ class Invariants:
     def __bool__(self) -> bool:
         return bool(self.pieces)
 
+    def reads_any(self, written: Collection[str]) -> bool:
+        """Whether some checked invariant reads a fluent in `written`."""
+        return any(not piece.reads.isdisjoint(written) for piece in self.pieces)
+
     def broken(
         self, before: Lookup, after: Lookup, written: Collection[str], limit: int = 5
     ) -> list[Violation]:

@@ -273,6 +273,8 @@ class KnowledgeBase:
         if not self._invariants:
             return
         written = {p.name for p, _, _ in writes}
+        if not self._invariants.reads_any(written):
+            return
         broken = self._invariants.broken(self._store.get, self._store.lookup_after(writes), written)
         if broken:
             raise InvariantError(
