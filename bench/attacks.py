@@ -392,8 +392,17 @@ def start_rddlsim(classpath: str, rddl: Path, folder: Path, nofile: int) -> tupl
     raise SystemExit("rddlsim's server did not start")
 
 
-def folder_size_mb(folder: Path) -> float:
-    return sum(p.stat().st_size for p in folder.rglob("*") if p.is_file()) / 1e6
+def logs_mb(folder: Path) -> float:
+    """The size of the server's logs (its stderr and rddlsim's log file; the
+    result database is not a log)."""
+    return (
+        sum(
+            p.stat().st_size
+            for p in folder.rglob("*")
+            if p.is_file() and p.suffix in (".log", ".out")
+        )
+        / 1e6
+    )
 
 
 def run_server(name: str, proc: Any, port: int, folder: Path, args: Any) -> list[dict[str, Any]]:
@@ -411,7 +420,7 @@ def run_server(name: str, proc: Any, port: int, folder: Path, args: Any) -> list
             t1 = time.monotonic()
             base = good.rate(t0, t1)
             rss0 = rss_mb(proc.pid)
-            logs0 = folder_size_mb(folder)
+            logs0 = logs_mb(folder)
             attack = Attack(kind)
             attack.start()
             a0 = time.monotonic()
@@ -444,7 +453,7 @@ def run_server(name: str, proc: Any, port: int, folder: Path, args: Any) -> list
                 "rss_before_mb": round(rss0),
                 "rss_end_mb": round(rss_end),
                 "rss_5s_after_mb": round(rss_after),
-                "log_growth_mb": round(folder_size_mb(folder) - logs0, 2),
+                "log_growth_mb": round(logs_mb(folder) - logs0, 2),
             }
             rows.append(row)
             print(_line(row), flush=True)
@@ -478,7 +487,7 @@ def main() -> None:
     ap.add_argument(
         "--hold",
         type=float,
-        default=40.0,
+        default=35.0,
         help="seconds after an attack starts at which its connections still open are counted",
     )
     ap.add_argument("--workers", type=int, default=2)

@@ -20,7 +20,7 @@ import trio
 
 from .config import ServerConfig
 from .environment import Environments
-from .limits import ConnectionTable, parse_networks, peer_host
+from .limits import EMPTY_CLOSE, ConnectionTable, closed_already, parse_networks, peer_host
 from .session import Services, Session
 
 log = logging.getLogger(__name__)
@@ -131,6 +131,16 @@ async def serve(
                         refused = table.refusal(host)
                         if refused is not None:
                             svc.notices.note(*refused)
+                            stream.socket.close()
+                            continue
+                        if closed_already(stream.socket):
+                            # numbered all the same, as rddlsim numbers it
+                            sid = svc.new_session_id()
+                            svc.notices.note(
+                                EMPTY_CLOSE,
+                                f"session {sid} ({host}): the client closed the connection"
+                                " before its session-request",
+                            )
                             stream.socket.close()
                             continue
                         key = next(keys)

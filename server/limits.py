@@ -19,6 +19,7 @@ import ctypes
 import ipaddress
 import logging
 import resource
+import socket
 import time
 from collections import Counter
 from collections.abc import Callable, Iterable
@@ -79,6 +80,32 @@ def peer_host(sock: Any) -> str:
         return str(sock.getpeername()[0])
     except OSError:
         return "?"
+
+
+def closed_already(sock: Any) -> bool:
+    """Whether the peer of a just-accepted connection has closed it already
+    (its end of stream is queued, nothing before it): such a connection,
+    the bulk of a connect-and-drop flood, is counted and closed by the
+    listener without costing a session anything."""
+    try:
+        # (a plain socket object over the same descriptor: trio's recv is async)
+        raw = socket.socket(fileno=sock.fileno())
+    except OSError:
+        return True
+    try:
+        return raw.recv(1, socket.MSG_PEEK | socket.MSG_DONTWAIT) == b""
+    except (BlockingIOError, InterruptedError):
+        return False
+    except OSError:
+        return True  # reset by the peer
+    finally:
+        raw.detach()  # the descriptor stays the caller's
+
+
+EMPTY_CLOSE = (
+    "connections closed before a session-request:"
+    " the client closed the connection before its session-request"
+)
 
 
 def _address(host: str) -> ipaddress.IPv4Address | ipaddress.IPv6Address | None:

@@ -54,7 +54,7 @@ from typing import Any
 import trio
 
 from .config import ServerConfig
-from .limits import BufferBudget, Notices, peer_host
+from .limits import EMPTY_CLOSE, BufferBudget, Notices, closed_already, peer_host
 from .registry import Registry
 
 log = logging.getLogger(__name__)
@@ -377,6 +377,13 @@ class WorkerPool:
                 return
             self.next_id += 1
             sid = self.next_id
+            if closed_already(sock):  # (numbered all the same, as rddlsim numbers it)
+                self.notices.note(
+                    EMPTY_CLOSE,
+                    f"session {sid} ({host}): the client closed the connection before its"
+                    " session-request",
+                )
+                return
             deadline = trio.current_time() + HANDOVER_WAIT
             while True:
                 ready = sorted(
