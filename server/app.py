@@ -20,7 +20,15 @@ import trio
 
 from .config import ServerConfig
 from .environment import Environments
-from .limits import EMPTY_CLOSE, ConnectionTable, closed_already, parse_networks, peer_host
+from .limits import (
+    EMPTY_CLOSE,
+    LISTEN_BACKLOG,
+    AcceptPacer,
+    ConnectionTable,
+    closed_already,
+    parse_networks,
+    peer_host,
+)
 from .session import Services, Session
 
 log = logging.getLogger(__name__)
@@ -88,7 +96,7 @@ async def serve(
     signal with `handle_signals`, or the end of the one session of
     `individual_session`.
     """
-    listeners = await trio.open_tcp_listeners(config.port, host=config.host)
+    listeners = await trio.open_tcp_listeners(config.port, host=config.host, backlog=LISTEN_BACKLOG)
     port = listeners[0].socket.getsockname()[1]
     owned = services is None
     svc = services or open_services(config, registry, port)
@@ -111,9 +119,12 @@ async def serve(
                 if config.individual_session:
                     nursery.cancel_scope.cancel()
 
+            pacer = AcceptPacer(config.accept_rate)
+
             async def accept_loop(listener: trio.SocketListener) -> None:
                 async with listener:
                     while True:
+                        await pacer.pace()
                         # (one accept per pass of the scheduler: a flood of new
                         # connections waits in the kernel's backlog while the
                         # sessions in progress take their turns)

@@ -12,6 +12,7 @@ import trio
 from ..rddl import RDDLError
 from .app import serve
 from .config import (
+    DEFAULT_ACCEPT_RATE,
     DEFAULT_BUSY_POLL_US,
     DEFAULT_MAX_BUFFERED,
     DEFAULT_MESSAGE_TIMEOUT,
@@ -119,6 +120,13 @@ from .workers import WorkerError, default_workers, serve_with_workers, supported
     help="MiB of unfinished messages over all sessions beyond 64 KiB each; a connection that needs more is closed.",
 )
 @click.option(
+    "--accept-rate",
+    type=float,
+    default=DEFAULT_ACCEPT_RATE,
+    show_default=True,
+    help="New connections a second the listener accepts at most (bursts of half that); more wait in the backlog; 0 = no limit.",
+)
+@click.option(
     "--busy-poll-us",
     type=float,
     default=DEFAULT_BUSY_POLL_US,
@@ -152,6 +160,7 @@ def main(
     max_connections_per_address: int | None,
     allow: tuple[str, ...],
     max_buffered_mib: float,
+    accept_rate: float,
     busy_poll_us: float,
     workers: str,
     quiet: bool,
@@ -179,6 +188,8 @@ def main(
     ):
         if n is not None and n < 1:
             raise click.BadParameter("must be at least 1", param_hint=name)
+    if accept_rate < 0:
+        raise click.BadParameter("must be 0 (no limit) or positive", param_hint="--accept-rate")
     if max_buffered_mib <= 0:
         raise click.BadParameter("must be positive", param_hint="--max-buffered-mib")
     try:
@@ -221,6 +232,7 @@ def main(
         max_connections_per_address=max_connections_per_address,
         allow=tuple(allow),
         max_buffered=int(max_buffered_mib * (1 << 20)),
+        accept_rate=accept_rate,
     )
 
     async def run() -> str | None:

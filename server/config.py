@@ -15,6 +15,7 @@ DEFAULT_BUSY_POLL_US = 1000.0  # rddl-server's --busy-poll-us
 DEFAULT_REQUEST_TIMEOUT = 30.0  # seconds from connecting to a whole session-request
 DEFAULT_MESSAGE_TIMEOUT = 30.0  # seconds from a message's first byte to its last
 DEFAULT_MAX_BUFFERED = 64 * 1024 * 1024  # bytes of unfinished messages, over all sessions
+DEFAULT_ACCEPT_RATE = 200.0  # new connections a second the listener takes at most
 
 
 @dataclass(frozen=True)
@@ -54,6 +55,8 @@ class ServerConfig:
     # bytes of unfinished messages beyond each connection's 64 KiB, over all
     # sessions (split evenly between worker processes)
     max_buffered: int = DEFAULT_MAX_BUFFERED
+    # new connections a second the listener accepts (bursts of half that); 0 = no limit
+    accept_rate: float = DEFAULT_ACCEPT_RATE
 
     @property
     def enforce_timeout(self) -> bool:

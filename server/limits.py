@@ -34,6 +34,9 @@ FD_HEADROOM = 64
 # bytes of an unfinished message that are a connection's own, outside the
 # shared budget: more than any message a planner sends (actions, requests)
 BUFFER_ALLOWANCE = 64 * 1024
+# connections the kernel queues for the listener: with the accept pacing, a
+# flood beyond it waits in its own connects (rddlsim's Java listener: 50)
+LISTEN_BACKLOG = 128
 # seconds between summaries of repeated notices
 NOTICE_INTERVAL = 10.0
 # notices of one cause logged in full per interval before they are counted
@@ -80,6 +83,33 @@ def peer_host(sock: Any) -> str:
         return str(sock.getpeername()[0])
     except OSError:
         return "?"
+
+
+class AcceptPacer:
+    """At most `rate` new connections a second (bursts of `burst`): under a
+    flood the rest wait in the kernel's backlog, and once that is full the
+    flooder's own connects wait (its SYNs are not answered), so the flood
+    costs the machine what `rate` connections cost, while the sessions in
+    progress take their turns. rate 0: no pacing."""
+
+    def __init__(self, rate: float, burst: float | None = None):
+        self.rate = rate
+        self.burst = burst if burst is not None else max(1.0, rate / 2)
+        self._tokens = self.burst
+        self._last = time.monotonic()
+
+    async def pace(self) -> None:
+        """Take one connection's token, sleeping until there is one."""
+        if self.rate <= 0:
+            return
+        import trio
+
+        now = time.monotonic()
+        self._tokens = min(self.burst, self._tokens + (now - self._last) * self.rate)
+        self._last = now
+        self._tokens -= 1.0
+        if self._tokens < 0:
+            await trio.sleep(-self._tokens / self.rate)
 
 
 def closed_already(sock: Any) -> bool:
@@ -304,6 +334,8 @@ class Notices:
 
 __all__ = [
     "BUFFER_ALLOWANCE",
+    "LISTEN_BACKLOG",
+    "AcceptPacer",
     "BufferBudget",
     "ConnectionTable",
     "Notices",

@@ -54,7 +54,15 @@ from typing import Any
 import trio
 
 from .config import ServerConfig
-from .limits import EMPTY_CLOSE, BufferBudget, Notices, closed_already, peer_host
+from .limits import (
+    EMPTY_CLOSE,
+    LISTEN_BACKLOG,
+    AcceptPacer,
+    BufferBudget,
+    Notices,
+    closed_already,
+    peer_host,
+)
 from .registry import Registry
 
 log = logging.getLogger(__name__)
@@ -450,7 +458,7 @@ async def serve_with_workers(
     worker processes. Reports the bound port once every worker is ready;
     runs until cancelled (or a signal, with `handle_signals`). The pool is
     appended to `pools` if given (tests look into it)."""
-    listeners = await trio.open_tcp_listeners(config.port, host=config.host)
+    listeners = await trio.open_tcp_listeners(config.port, host=config.host, backlog=LISTEN_BACKLOG)
     port = listeners[0].socket.getsockname()[1]
     pool = WorkerPool(config, paths, n, port)
     if pools is not None:
@@ -473,7 +481,9 @@ async def serve_with_workers(
 
 async def _accept(listener: trio.SocketListener, pool: WorkerPool) -> None:
     sock = listener.socket
+    pacer = AcceptPacer(pool.config.accept_rate)
     while True:
+        await pacer.pace()
         try:
             conn, _ = await sock.accept()
         except OSError as err:  # e.g. too many open files: wait, go on
