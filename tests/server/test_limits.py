@@ -391,6 +391,7 @@ def test_a_reader_that_failed_frees_its_bytes_at_once() -> None:
         (["--max-connections", "0"], "must be at least 1"),
         (["--max-connections-per-address", "0"], "must be at least 1"),
         (["--max-buffered-mib", "0"], "must be positive"),
+        (["--accept-rate", "-1"], "must be 0 (no limit) or positive"),
     ],
 )
 def test_option_errors(args: list[str], message: str) -> None:
@@ -543,3 +544,39 @@ async def test_a_session_in_progress_plays_on_through_a_connection_flood(caplog)
     assert len(result["rounds"]) == 3 and len(result["states"]) == len(quiet["states"])
     assert flooded == 400
     assert len(caplog.records) < 20
+
+
+def test_the_accept_pacer_lets_a_burst_through_then_paces(monkeypatch) -> None:
+    import ippc.server.limits as L
+
+    now = [100.0]
+    slept: list[float] = []
+
+    async def fake_sleep(seconds: float) -> None:
+        slept.append(seconds)
+        now[0] += seconds
+
+    monkeypatch.setattr(L.time, "monotonic", lambda: now[0])
+    monkeypatch.setattr(trio, "sleep", fake_sleep)
+    pacer = L.AcceptPacer(rate=10.0, burst=3.0)
+
+    async def main() -> None:
+        for _ in range(3):
+            await pacer.pace()
+        assert slept == []  # the burst
+        for _ in range(4):
+            await pacer.pace()
+        assert slept == pytest.approx([0.1] * 4)  # then one per 1/rate
+        now[0] += 10.0  # a quiet while refills the burst, no more
+        slept.clear()
+        for _ in range(3):
+            await pacer.pace()
+        assert slept == []
+        await pacer.pace()
+        assert slept == pytest.approx([0.1])
+        unpaced = L.AcceptPacer(rate=0)
+        for _ in range(100):
+            await unpaced.pace()
+        assert len(slept) == 1
+
+    trio.run(main)
