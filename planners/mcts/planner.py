@@ -447,14 +447,18 @@ class MCTSPlanner(Planner):
             if not leaves:
                 break
             clock.restart()
+            t0 = time.monotonic()
             self._expand(list(leaves.values()), turn, clock)
+            expanding = time.monotonic() - t0
             # (with `new_nodes` above 1) the trials go on below the leaves
             # they stopped at, now expanded, as PROST's trials do through
             # that many new decision nodes
             active = [
                 i for i in stopped if not trials[i].node.terminal and levels[i] != st.trial_depth
             ]
-            if not active or phase + 1 == phases or clock.passed(2.0):
+            # another phase only if its expansion is likely to end in time:
+            # one cut short leaves its leaves with rollouts of a step or two
+            if not active or phase + 1 == phases or clock.left() < 2.0 * expanding:
                 break
             states = _stack_states([trials[i].node.states for i in active], self._state_names)
         for node in touched:
