@@ -27,7 +27,7 @@ What it measures
     get less than a core, and the figures are only comparable within one run.
 
 Usage
-    python bench/planner_speed.py                        # 4 instances x 0.1 s and 1 s, ~8 minutes
+    python bench/planner_speed.py                        # 4 instances x 0.1 s and 1 s, about 5 minutes
     python bench/planner_speed.py --budgets 0.1 --instances SysAdmin_MDP_ippc2011:1
     python bench/planner_speed.py --json speed.json
 """
