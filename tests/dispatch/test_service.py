@@ -74,7 +74,7 @@ def test_a_silent_planner_is_dropped_while_silent_and_the_next_goes_on(tmp_path:
                             None,
                             server_config(rounds=1, db=db),
                             on_listening=ports.append,
-                            link=LinkPolicy(reconnect=True, silence=0.5),
+                            link=LinkPolicy(reconnect=True, silence=2.0),
                             journal=True,
                         )
                     )
@@ -102,8 +102,10 @@ def test_a_silent_planner_is_dropped_while_silent_and_the_next_goes_on(tmp_path:
             return box[0], t0
 
     report, t0 = trio.run(main)
-    # detected while silent: half a second after the session-init, not at the end of a budget
-    assert dropped_at[0] - t0 < 3.0
+    # detected while silent: 2 s after the session-init, not at the end of the budget (18
+    # minutes). Not shorter: the second planner, `exact`, solves for ~0.4 s inside this trio
+    # loop before its first answer, and under load that alone outlasted a 0.5 s limit
+    assert dropped_at[0] - t0 < 10.0
     assert report.sessions == ["dropped", "finished"] and report.session_status == "finished"
     assert report.goal_reached
     # the second planner went on from what the knowledge base knew, not the initial state
@@ -113,7 +115,7 @@ def test_a_silent_planner_is_dropped_while_silent_and_the_next_goes_on(tmp_path:
     with ResultStore(db) as store:
         sessions = store.sessions()
         assert [s["status"] for s in sessions] == ["dropped", "finished"]
-        assert "silent for 0.5 s" in sessions[0]["reason"]
+        assert "silent for 2 s" in sessions[0]["reason"]
         assert report.journaled == len(store.kb_batches("courier_one")) - 1 == 4  # + "start"
 
 
