@@ -25,8 +25,10 @@ BUDGET = 0.1
 # batched simulator calls and stops when the slowest recent one would end
 # late, so the overrun is what is left after the last check. (On the shared
 # machine at load 10-17 the worst of 20 turns was 0.116-0.156 s; this test
-# is meant for a machine to itself but for the busy loop.)
-SLACK = 0.02
+# is meant for a machine to itself but for the busy loop. In a fresh-clone
+# `make test` at load 2-3 the worst was 0.128 s, so 20 ms was too tight; the
+# mcts before the deadline work overran by 180-680 ms, which 50 ms still catches.)
+SLACK = 0.05
 
 
 @pytest.mark.parametrize(("domain", "n"), [("Elevators", 1), ("CooperativeRecon", 2)])
