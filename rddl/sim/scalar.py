@@ -254,14 +254,8 @@ class _Writer:
         return self.sim._compiler.code_of(name, hint)  # type: ignore[no-any-return]
 
     def literal(self, a: A.Expr, t: str) -> int | None:
-        if isinstance(a, (A.EnumLit, A.ObjectLit)) or (
-            isinstance(a, A.PVar) and a.name not in self.model.pvariables
-        ):
-            name = a.name
-            if isinstance(a, A.PVar) and t in self.codes and "@" + name in self.codes[t]:
-                name = "@" + name
-            return self.code_of(name, t)[0]
-        return None
+        """The code of an argument that names an object or enum value (the batched compiler's rule)."""
+        return self.sim._compiler._literal_code(a, t)  # type: ignore[no-any-return]
 
     # -- expressions ---------------------------------------------------------
 
