@@ -11,6 +11,12 @@ imports each result as it comes back. The executors:
   own in-process server inside the worker, exactly as the local pool does, and returns
   the recorded session, so the results are the same wherever a job ran.
 
+One run at a time per database: `run_batch` holds an exclusive lock on ``DB.lock`` (an
+advisory ``flock``, released when the process ends, however it ends) while it plays, and a
+second run on the same database is refused at once naming the first one's process, so no
+job is played twice at once (a second run would also take the first's running jobs for
+left over, and play them again).
+
 Ctrl-C (KeyboardInterrupt) stops the batch: jobs not started are not started, jobs
 running are stopped (their workers are ended) and marked ``interrupted``, and every job
 that finished is already in the database. Running again resumes.
@@ -18,6 +24,8 @@ that finished is already in the database. Running again resumes.
 
 from __future__ import annotations
 
+import contextlib
+import fcntl
 import logging
 import multiprocessing
 import os
@@ -154,6 +162,33 @@ def _dask(jobs: list[Job], cluster: Any, started: Callable[[Job], None]) -> Iter
             client.close()
 
 
+@contextlib.contextmanager
+def _run_lock(db: str | Path) -> Iterator[None]:
+    """Hold ``DB.lock`` exclusively for the run; `ExperimentError` if another
+    process holds it (its pid, written in the file, is named)."""
+    if str(db) == ":memory:":
+        yield
+        return
+    path = Path(f"{db}.lock")
+    fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            holder = os.pread(fd, 32, 0).decode("ascii", "replace").strip() or "?"
+            raise ExperimentError(
+                [
+                    f"{db}: another rddl-batch run (pid {holder}) is playing this database's "
+                    "jobs; wait for it to end or stop it (Ctrl-C), then run again to resume"
+                ]
+            ) from None
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, f"{os.getpid()}\n".encode("ascii"), 0)
+        yield
+    finally:
+        os.close(fd)  # releases the lock
+
+
 def run_batch(
     experiment: Experiment,
     db: str | Path,
@@ -188,7 +223,7 @@ def run_batch(
         experiment, instances, log_dir=None if log_dir is None else str(log_dir), server=server
     )
     n = jobs or experiment.jobs
-    with BatchStore(db) as store:
+    with _run_lock(db), BatchStore(db) as store:
         conflicts = store.register(all_jobs)
         if conflicts:
             raise ExperimentError(

@@ -12,7 +12,14 @@ import time
 from pathlib import Path
 
 import pytest
-from ippc.batch import BatchStore, load_experiment, read_rddlsim_log, run_batch, score
+from ippc.batch import (
+    BatchStore,
+    ExperimentError,
+    load_experiment,
+    read_rddlsim_log,
+    run_batch,
+    score,
+)
 
 from .conftest import REPO, outcome, write_small
 
@@ -102,6 +109,37 @@ def test_sigkill_half_way_then_resume_gives_the_same_scores(
         jobs = store.jobs()
         assert len({j.session_id for j in jobs}) == 12 and all(j.status == "finished" for j in jobs)
         assert store.raw("SELECT count(*) FROM sessions")[0][0] == 12
+
+
+def test_a_second_run_on_the_same_database_is_refused(tmp_path: Path, small_reference) -> None:
+    # Two runs on one database would each play every job left (and the second takes the
+    # first's running jobs for left over): the second is refused, naming the first.
+    _, _, reference = small_reference
+    path = write_small(tmp_path)
+    db = tmp_path / "shared.sqlite"
+    proc = start_batch(path, db, jobs=1)
+    try:
+        wait_for(db, proc, 1)
+        before = finished_jobs(db)
+        with pytest.raises(ExperimentError, match=rf"another rddl-batch run \(pid {proc.pid}\)"):
+            run_batch(load_experiment(path), db, jobs=1)
+        cli = subprocess.run(
+            [sys.executable, "-m", "ippc.batch.cli", "run", str(path), "--db", str(db)],
+            capture_output=True,
+            timeout=60,
+        )
+        assert cli.returncode != 0 and b"another rddl-batch run" in cli.stderr, cli.stderr
+        # the first one went on undisturbed, and ends with every job played once
+        out, err = proc.communicate(timeout=180)
+    finally:
+        cleanup(proc)
+    assert proc.returncode == 0, err.decode()
+    assert finished_jobs(db) == 12 > before
+    assert outcome(db) == reference
+    with BatchStore(db) as store:
+        assert store.raw("SELECT count(*) FROM sessions")[0][0] == 12
+    # once it has ended, the database is free again: nothing left to play
+    assert run_batch(load_experiment(path), db, jobs=1).skipped == 12
 
 
 @pytest.mark.parametrize("jobs", [2, 1], ids=["pool", "serial"])
