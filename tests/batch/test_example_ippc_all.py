@@ -41,3 +41,19 @@ def test_the_file_reads_and_every_instance_resolves() -> None:
     for inst in instances:
         assert inst.model.horizon is not None, inst.name
         assert inst.model.horizon * exp.rounds * 0.1 <= exp.timeout / 2, inst.name
+
+
+def test_the_one_second_subset_reads_and_resolves() -> None:
+    path = REPO / "examples" / "ippc-1s.toml"
+    exp = load_experiment(path)
+    assert (exp.name, exp.rounds, exp.jobs) == ("ippc-1s", 10, 1)
+    assert exp.planner("mcts").options == {"time_per_step": "1"}
+    prost = tomllib.loads(path.read_text())["planners"]["prost"]
+    assert prost["options"] == {"config": "[Prost -s 1 -se [IPC2014 -t 1]]"}
+    # the same seed as the 0.1 s run: the same server draws on the shared instances
+    assert exp.seed == load_experiment(FILE).seed
+    instances = resolve_instances(exp)
+    assert len(instances) == 3
+    for inst in instances:
+        assert inst.model.horizon is not None, inst.name
+        assert inst.model.horizon * exp.rounds * 1.0 <= exp.timeout / 2, inst.name
