@@ -41,15 +41,20 @@ def open_services(
     *,
     owner: str | None = None,
     stamp: str | None = None,
+    live: Any = None,
 ) -> Services:
     """The result store, rddlsim's log file and the transcript factory the
     configuration asks for. `owner` names the store's sessions (see
     `ResultStore`), `stamp` starts the transcripts' file names (default: now);
-    the worker processes of one server share the stamp."""
+    the worker processes of one server share the stamp. `live` (a
+    `server.web.SessionBoard`, for the web view) is told everything the
+    store is."""
     from .records import RddlsimLog, TranscriptWriter
     from .store import ResultStore
 
     store = ResultStore(config.db, owner=owner) if config.db is not None else None
+    if live is not None:
+        store = live.wrap(store)
     rlog = (
         RddlsimLog(RddlsimLog.default_path(config.log_dir, port))
         if config.log_dir is not None
@@ -88,18 +93,20 @@ async def serve(
     task_status: trio.TaskStatus[int] = trio.TASK_STATUS_IGNORED,
     services: Services | None = None,
     handle_signals: bool = False,
+    live: Any = None,
 ) -> Services:
     """Accept connections and play a session on each.
 
     Reports the bound port through `task_status` once listening. Returns the
     services (with the last session's status) when it stops: cancelled, a
     signal with `handle_signals`, or the end of the one session of
-    `individual_session`.
+    `individual_session`. With `live` (a `server.web.SessionBoard`), the
+    sessions' results are noted there too (the web view).
     """
     listeners = await trio.open_tcp_listeners(config.port, host=config.host, backlog=LISTEN_BACKLOG)
     port = listeners[0].socket.getsockname()[1]
     owned = services is None
-    svc = services or open_services(config, registry, port)
+    svc = services or open_services(config, registry, port, live=live)
     table = connection_table(config)
     keys = itertools.count(1)
     reason = "server stopped"

@@ -5,11 +5,13 @@ from __future__ import annotations
 import logging
 import sys
 from pathlib import Path
+from typing import Any
 
 import click
 import trio
 
 from ..rddl import RDDLError
+from ..web import WebOptions, serve_web, web_options, web_url
 from .app import serve
 from .config import (
     DEFAULT_ACCEPT_RATE,
@@ -140,6 +142,7 @@ from .workers import WorkerError, default_workers, serve_with_workers, supported
     metavar="N|auto",
     help="Processes that play the sessions (one listener hands each connection to the least busy); auto = one per core (one process on one core, with --individual-session, or where workers cannot run). Sessions are numbered and seeded as with one.",
 )
+@web_options
 @click.option("-q", "--quiet", is_flag=True, help="Log warnings only.")
 def main(
     rddl_dir: Path,
@@ -163,6 +166,8 @@ def main(
     accept_rate: float,
     busy_poll_us: float,
     workers: str,
+    web: int | None,
+    web_host: str | None,
     quiet: bool,
 ) -> None:
     """Serve every RDDL instance under RDDL_DIR to IPPC clients (PROST,
@@ -199,6 +204,7 @@ def main(
     if not 0 <= busy_poll_us <= 10_000:
         raise click.BadParameter("must be between 0 and 10000", param_hint="--busy-poll-us")
     n_workers = _workers(workers, individual_session)
+    web_opts = WebOptions.from_cli(web, web_host)
     if busy_poll_us and default_workers() < 2:
         # with one CPU the poll would only keep the client from answering
         logging.getLogger(__name__).info("one CPU: the busy poll is off")
@@ -237,14 +243,31 @@ def main(
 
     async def run() -> str | None:
         async with trio.open_nursery() as nursery:
+            board = None
+            if web_opts is not None:
+                from .web import ServerView, SessionBoard
+
+                board = SessionBoard()
+                view = ServerView(board)
+                web_port = await nursery.start(serve_web, view.routes, web_opts)
+                nursery.start_soon(view.run)
             if n_workers > 1:
                 bound = await nursery.start(
-                    _serve_workers_and_stop, config, str(rddl_dir), n_workers, nursery.cancel_scope
+                    _serve_workers_and_stop,
+                    config,
+                    str(rddl_dir),
+                    n_workers,
+                    nursery.cancel_scope,
+                    board,
                 )
             else:
-                bound = await nursery.start(_serve_and_stop, config, registry, nursery.cancel_scope)
+                bound = await nursery.start(
+                    _serve_and_stop, config, registry, nursery.cancel_scope, board
+                )
             _listening[0] = True
             click.echo(f"listening on {host}:{bound}", err=False)
+            if web_opts is not None:
+                click.echo(f"web view on {web_url(web_opts, web_port)}", err=False)
             sys.stdout.flush()
             click.echo(
                 f"serving {len(registry)} instance(s): {', '.join(registry.names()[:8])}"
@@ -343,9 +366,12 @@ async def _serve_workers_and_stop(
     path: str,
     n: int,
     outer: trio.CancelScope,
+    board: Any = None,
     task_status: trio.TaskStatus[int] = trio.TASK_STATUS_IGNORED,
 ) -> None:
-    await serve_with_workers(config, [path], n, task_status=task_status, handle_signals=True)
+    await serve_with_workers(
+        config, [path], n, task_status=task_status, handle_signals=True, live=board
+    )
     outer.cancel()
 
 
@@ -353,8 +379,9 @@ async def _serve_and_stop(
     config: ServerConfig,
     registry: Registry,
     outer: trio.CancelScope,
+    board: Any = None,
     task_status: trio.TaskStatus[int] = trio.TASK_STATUS_IGNORED,
 ) -> None:
-    svc = await serve(config, registry, task_status=task_status, handle_signals=True)
+    svc = await serve(config, registry, task_status=task_status, handle_signals=True, live=board)
     _last_status[0] = svc.last_status
     outer.cancel()

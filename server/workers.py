@@ -126,6 +126,8 @@ class _Worker:
         self.alive = False
         self.deaths: list[float] = []
         self.given_up = False  # died too often: not restarted
+        # with the web view: the socket its session records come back on
+        self.events: socket.socket | None = None
 
     def __repr__(self) -> str:
         pid = self.proc.pid if self.proc is not None else None
@@ -135,8 +137,10 @@ class _Worker:
 class WorkerPool:
     """The worker processes of one server and the count of open sessions."""
 
-    def __init__(self, config: ServerConfig, paths: list[str], n: int, port: int):
+    def __init__(self, config: ServerConfig, paths: list[str], n: int, port: int, live: Any = None):
         self.config = config
+        # the web view's board (server.web.SessionBoard), or None
+        self.live = live
         self.paths = paths
         self.port = port
         self.stamp = time.strftime("%Y%m%d-%H%M%S")
@@ -167,6 +171,13 @@ class WorkerPool:
 
     def _spawn(self, w: _Worker) -> None:
         parent, child = socket.socketpair(socket.AF_UNIX, socket.SOCK_SEQPACKET)
+        fds = [child.fileno(), self._count_file.fileno()]
+        events_child = None
+        if self.live is not None:
+            if w.events is not None:
+                w.events.close()
+            w.events, events_child = socket.socketpair(socket.AF_UNIX, socket.SOCK_SEQPACKET)
+            fds.append(events_child.fileno())
         spec = {
             "index": w.index,
             "owner": w.owner,
@@ -178,6 +189,7 @@ class WorkerPool:
             "config": _config_to_json(self.config),
             "workers": len(self.workers),
             "log_level": logging.getLogger().getEffectiveLevel(),
+            "live": events_child.fileno() if events_child is not None else None,
         }
         try:
             w.proc = subprocess.Popen(
@@ -187,7 +199,7 @@ class WorkerPool:
                     "from ippc.server.workers import worker_main; worker_main()",
                     json.dumps(spec),
                 ],
-                pass_fds=(child.fileno(), self._count_file.fileno()),
+                pass_fds=tuple(fds),
                 stdin=subprocess.DEVNULL,
             )
         except OSError as err:
@@ -195,6 +207,8 @@ class WorkerPool:
             raise WorkerError(f"cannot start worker {w.index}: {err}") from None
         finally:
             child.close()
+            if events_child is not None:
+                events_child.close()
         parent.setblocking(False)
         w.ctrl = parent
         w.ready = trio.Event()
@@ -226,6 +240,10 @@ class WorkerPool:
             async with trio.open_nursery() as watchdog:
                 if w.deaths:  # a restart: nobody else waits for it to be ready
                     watchdog.start_soon(self._kill_unless_ready, w)
+                if w.events is not None and self.live is not None:
+                    from .web import receive_records
+
+                    watchdog.start_soon(receive_records, w.events, self.live)
                 await self._read(w)
                 watchdog.cancel_scope.cancel()
             code = await self._reap(w)
@@ -245,6 +263,10 @@ class WorkerPool:
                 "%r exited (%s) with %d open session(s) %s", w, _status(code), len(lost), lost
             )
             self._interrupt(w, f"worker process died ({_status(code)})")
+            if self.live is not None and lost:
+                self.live.interrupt_running(
+                    f"worker process died ({_status(code)})", time.time(), lost
+                )
             if not await self._restart(w):
                 return
 
@@ -365,6 +387,10 @@ class WorkerPool:
                 trio.lowlevel.notify_closing(w.ctrl)
                 w.ctrl.close()
                 w.ctrl = None
+            if w.events is not None:
+                trio.lowlevel.notify_closing(w.events)
+                w.events.close()
+                w.events = None
         self._map.close()
         self._count_file.close()
 
@@ -453,14 +479,17 @@ async def serve_with_workers(
     task_status: trio.TaskStatus[int] = trio.TASK_STATUS_IGNORED,
     handle_signals: bool = False,
     pools: list[WorkerPool] | None = None,
+    live: Any = None,
 ) -> None:
     """Listen on the configured address and play every session in one of `n`
     worker processes. Reports the bound port once every worker is ready;
     runs until cancelled (or a signal, with `handle_signals`). The pool is
-    appended to `pools` if given (tests look into it)."""
+    appended to `pools` if given (tests look into it). With `live` (a
+    `server.web.SessionBoard`), the workers send their sessions' records
+    back to it (the web view)."""
     listeners = await trio.open_tcp_listeners(config.port, host=config.host, backlog=LISTEN_BACKLOG)
     port = listeners[0].socket.getsockname()[1]
-    pool = WorkerPool(config, paths, n, port)
+    pool = WorkerPool(config, paths, n, port, live)
     if pools is not None:
         pools.append(pool)
     try:
@@ -530,7 +559,15 @@ async def _worker(
 ) -> None:
     from .app import close_services, open_services, play_connection
 
-    svc = open_services(config, registry, spec["port"], owner=spec["owner"], stamp=spec["stamp"])
+    board = events = None
+    if spec.get("live") is not None:
+        from .web import SessionBoard
+
+        board = SessionBoard()
+        events = socket.socket(fileno=spec["live"])
+    svc = open_services(
+        config, registry, spec["port"], owner=spec["owner"], stamp=spec["stamp"], live=board
+    )
     svc.server_open = memoryview(count).cast("q")
     # the server's budget for unfinished messages, shared out evenly
     budget = svc.budget = BufferBudget(
@@ -599,12 +636,21 @@ async def _worker(
                 top.start_soon(on_signal, signals, top.cancel_scope)
                 top.start_soon(svc.notices.run)
                 top.start_soon(budget.run)
+                if board is not None and events is not None:
+                    from .web import forward_records
+
+                    top.start_soon(forward_records, events, board)
                 async with trio.open_nursery() as sessions:
                     sessions.start_soon(take_sessions, sessions)
                 top.cancel_scope.cancel()  # no more sessions to come or to end
         finally:
             svc.server_open = None
             close_services(svc, "server stopped")
+            if board is not None and events is not None:
+                from .web import send_records
+
+                send_records(events, board)  # the sessions just closed
+                events.close()
             ctrl.close()
 
 

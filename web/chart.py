@@ -1,0 +1,157 @@
+"""Small SVG charts drawn by the server (no script, no library in the page).
+
+A page shows them as `<img src=...svg>`: an SVG loaded as an image runs no
+script and fetches nothing, and every label in it is escaped here. live.js
+reloads the image when the number it depends on changes (see
+`html.live_table`'s `charts`).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+
+from .html import Markup, esc, fmt_number
+
+# colour-blind-safe categorical colours (Okabe and Ito)
+PALETTE = ("#0072b2", "#e69f00", "#009e73", "#cc79a7", "#56b4e9", "#d55e00", "#f0e442", "#000000")
+
+
+def _finite(values: Sequence[float | None]) -> list[float]:
+    return [v for v in values if v is not None and math.isfinite(v)]
+
+
+def _range(values: list[float]) -> tuple[float, float]:
+    if not values:
+        return 0.0, 1.0
+    lo, hi = min(values), max(values)
+    if lo == hi:
+        pad = abs(lo) * 0.1 or 1.0
+        return lo - pad, hi + pad
+    return lo, hi
+
+
+def _svg(width: int, height: int, label: str, *body: str) -> Markup:
+    return Markup(
+        f'<svg xmlns="http://www.w3.org/2000/svg" width="{width}" height="{height}"'
+        f' viewBox="0 0 {width} {height}" role="img" aria-label="{esc(label)}">'
+        f"<title>{esc(label)}</title>" + "".join(body) + "</svg>\n"
+    )
+
+
+def sparkline(
+    values: Sequence[float | None], *, width: int = 120, height: int = 28, label: str = ""
+) -> Markup:
+    """A line of `values` (one point each, e.g. a session's round rewards)
+    with a dot at the last one; empty when there is nothing to draw."""
+    pts = [(i, v) for i, v in enumerate(values) if v is not None and math.isfinite(v)]
+    if not pts:
+        return _svg(width, height, label or "no data yet")
+    lo, hi = _range([v for _, v in pts])
+    n = max(len(values) - 1, 1)
+    pad = 3
+
+    def xy(i: int, v: float) -> tuple[float, float]:
+        x = pad + (width - 2 * pad) * (i / n if len(values) > 1 else 0.5)
+        y = height - pad - (height - 2 * pad) * (v - lo) / (hi - lo)
+        return round(x, 1), round(y, 1)
+
+    coords = [xy(i, v) for i, v in pts]
+    path = " ".join(f"{x},{y}" for x, y in coords)
+    lx, ly = coords[-1]
+    return _svg(
+        width,
+        height,
+        label or f"{len(pts)} values, last {fmt_number(pts[-1][1])}",
+        f'<polyline points="{path}" fill="none" stroke="{PALETTE[0]}" stroke-width="1.5"/>',
+        f'<circle cx="{lx}" cy="{ly}" r="2.5" fill="{PALETTE[5]}"/>',
+    )
+
+
+def line_chart(
+    series: Mapping[str, Sequence[float | None]],
+    *,
+    title: str = "",
+    x_label: str = "round",
+    y_label: str = "reward",
+    width: int = 640,
+    height: int = 260,
+    x_start: int = 1,
+) -> Markup:
+    """Lines of several series against their index (`x_start` for the
+    first), with axes, ticks and a legend; names are escaped."""
+    left, right, top, bottom = 64, 16, 28 if title else 12, 40
+    legend_h = 16 * min(len(series), 8)
+    plot_w = width - left - right
+    plot_h = height - top - bottom
+    total_h = height + legend_h
+    values = [v for vs in series.values() for v in _finite(vs)]
+    lo, hi = _range(values)
+    n = max((len(vs) for vs in series.values()), default=0)
+    span = max(n - 1, 1)
+
+    def x(i: int) -> float:
+        return round(left + plot_w * (i / span if n > 1 else 0.5), 1)
+
+    def y(v: float) -> float:
+        return round(top + plot_h - plot_h * (v - lo) / (hi - lo), 1)
+
+    parts: list[str] = []
+    if title:
+        parts.append(
+            f'<text x="{left}" y="16" font-family="sans-serif" font-size="13">{esc(title)}</text>'
+        )
+    # axes and ticks
+    parts.append(
+        f'<rect x="{left}" y="{top}" width="{plot_w}" height="{plot_h}" fill="none" stroke="#888"/>'
+    )
+    for k in range(5):
+        v = lo + (hi - lo) * k / 4
+        yy = y(v)
+        parts.append(
+            f'<line x1="{left}" x2="{left + plot_w}" y1="{yy}" y2="{yy}" stroke="#ddd"/>'
+            f'<text x="{left - 4}" y="{yy + 4}" text-anchor="end" font-family="sans-serif"'
+            f' font-size="11">{esc(fmt_number(v, 3))}</text>'
+        )
+    for i in sorted({0, n // 2, n - 1} if n > 0 else set()):
+        parts.append(
+            f'<text x="{x(i)}" y="{top + plot_h + 16}" text-anchor="middle" font-family="sans-serif"'
+            f' font-size="11">{i + x_start}</text>'
+        )
+    parts.append(
+        f'<text x="{left + plot_w / 2}" y="{top + plot_h + 32}" text-anchor="middle"'
+        f' font-family="sans-serif" font-size="12">{esc(x_label)}</text>'
+        f'<text x="14" y="{top + plot_h / 2}" text-anchor="middle" font-family="sans-serif"'
+        f' font-size="12" transform="rotate(-90 14 {top + plot_h / 2})">{esc(y_label)}</text>'
+    )
+    if not values:
+        parts.append(
+            f'<text x="{left + plot_w / 2}" y="{top + plot_h / 2}" text-anchor="middle"'
+            f' font-family="sans-serif" font-size="12" fill="#666">no data yet</text>'
+        )
+    for k, (name, vs) in enumerate(series.items()):
+        colour = PALETTE[k % len(PALETTE)]
+        pts = [(x(i), y(v)) for i, v in enumerate(vs) if v is not None and math.isfinite(v)]
+        if len(pts) > 1:
+            parts.append(
+                f'<polyline points="{" ".join(f"{a},{b}" for a, b in pts)}" fill="none"'
+                f' stroke="{colour}" stroke-width="1.5"/>'
+            )
+        for a, b in pts if len(pts) <= 60 else pts[-1:]:
+            parts.append(f'<circle cx="{a}" cy="{b}" r="2.5" fill="{colour}"/>')
+        if k < 8:
+            ly = height + 16 * k + 4
+            parts.append(
+                f'<rect x="{left}" y="{ly}" width="10" height="10" fill="{colour}"/>'
+                f'<text x="{left + 16}" y="{ly + 9}" font-family="sans-serif" font-size="11">'
+                f"{esc(name)}</text>"
+            )
+    if len(series) > 8:
+        parts.append(
+            f'<text x="{left + 200}" y="{height + 13}" font-family="sans-serif" font-size="11">'
+            f"(and {len(series) - 8} more)</text>"
+        )
+    return _svg(width, total_h, title or f"{y_label} per {x_label}", *parts)
+
+
+__all__ = ["PALETTE", "line_chart", "sparkline"]
