@@ -41,7 +41,12 @@ HERE = Path(__file__).resolve().parent
 REPO = HERE.parent
 sys.path.insert(0, str(HERE))
 
-from server import NoopClients, bench_rddl, stop  # noqa: E402  (bench/server.py's workload)
+from server import (  # noqa: E402  (bench/server.py's workload and process tools)
+    NoopClients,
+    bench_rddl,
+    cpu_seconds,
+    stop,
+)
 
 SERVER = [sys.executable, "-c", "from ippc.server.cli import main; main()"]
 
@@ -54,7 +59,7 @@ def start(
     cmd += ["--workers", "1", "-q", *extra]
     if web:
         cmd += ["--web", "0"]
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True)
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
     assert proc.stdout is not None
     line = proc.stdout.readline()
     if not line.startswith("listening on"):
@@ -121,17 +126,21 @@ def start_viewers(web_port: int, n: int) -> subprocess.Popen[str]:
 # ------------------------------------------------------------------ the bench
 
 
-def measure(rddl: Path, rounds: int, clients: int, web: bool, viewers: int) -> float:
-    """Turns per second of `clients` noop sessions at once."""
+def measure(rddl: Path, rounds: int, clients: int, web: bool, viewers: int) -> tuple[float, float]:
+    """Turns per second of `clients` noop sessions at once, and the server's
+    CPU time per turn (microseconds; less disturbed by a loaded machine)."""
     server, port, web_port = start(rddl, rounds, web)
     watchers = None
     try:
         if viewers:
             watchers = start_viewers(web_port, viewers)
             time.sleep(0.5)  # every viewer subscribed
+        cpu0 = cpu_seconds(server.pid)
         t0 = time.perf_counter()
         turns = NoopClients(port, clients).run()
-        return turns / (time.perf_counter() - t0)
+        secs = time.perf_counter() - t0
+        cpu = cpu_seconds(server.pid) - cpu0
+        return turns / secs, cpu / turns * 1e6
     finally:
         stop(watchers)
         stop(server)
@@ -154,24 +163,36 @@ def bench(args: argparse.Namespace) -> None:
             f"web, {args.viewers} viewers": (True, args.viewers),
         }
         runs: dict[str, list[float]] = {name: [] for name in lines}
+        cpus: dict[str, list[float]] = {name: [] for name in lines}
         print(
             f"rddl-server --workers 1, {args.clients} noop client(s), {args.rounds} rounds of 40"
             f" turns each; {args.repeat} passes; load before: {load()}"
         )
         for k in range(args.repeat):
             for name, (web, viewers) in lines.items():
-                rate = measure(rddl, args.rounds, args.clients, web, viewers)
+                rate, cpu = measure(rddl, args.rounds, args.clients, web, viewers)
                 runs[name].append(rate)
-                print(f"  pass {k + 1}: {name:<20} {rate:9.0f} turns/s", flush=True)
+                cpus[name].append(cpu)
+                print(
+                    f"  pass {k + 1}: {name:<20} {rate:9.0f} turns/s {cpu:7.0f} cpu us/turn",
+                    flush=True,
+                )
         med = {name: statistics.median(v) for name, v in runs.items()}
-        print(f"\n{'server':<22} {'turns/s (median)':>17}  runs")
+        mcpu = {name: statistics.median(v) for name, v in cpus.items()}
+        print(f"\n{'server':<22} {'turns/s':>9} {'cpu us/turn':>12}  (medians; turns/s runs)")
         for name, v in runs.items():
-            print(f"{name:<22} {med[name]:17.0f}  {', '.join(f'{x:.0f}' for x in v)}")
-        with_viewers = f"web, {args.viewers} viewers"
+            print(
+                f"{name:<22} {med[name]:9.0f} {mcpu[name]:12.0f}  {', '.join(f'{x:.0f}' for x in v)}"
+            )
+        viewed = f"web, {args.viewers} viewers"
         print(
-            f"\nratio {with_viewers} / web, 0 viewers: {med[with_viewers] / med['web, 0 viewers']:.3f}"
+            f"\nturns/s, {viewed} / web, 0 viewers: {med[viewed] / med['web, 0 viewers']:.3f}"
+            f"   (cpu/turn: {mcpu[viewed] / mcpu['web, 0 viewers']:.3f})"
         )
-        print(f"ratio web, 0 viewers / no web: {med['web, 0 viewers'] / med['no web']:.3f}")
+        print(
+            f"turns/s, web, 0 viewers / no web: {med['web, 0 viewers'] / med['no web']:.3f}"
+            f"   (cpu/turn: {mcpu['web, 0 viewers'] / mcpu['no web']:.3f})"
+        )
         print(f"load after: {load()}")
 
 

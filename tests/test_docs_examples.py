@@ -53,6 +53,7 @@ CONSOLE: dict[tuple[str, str], Console] = {
     ("docs/cli.md", "rddl sim domains/print_jobs/domain.rddl"): Console(),
     ("docs/cli.md", "SYSADMIN=$(python -c"): Console(),
     ("docs/cli.md", "rddl-server domains/ --port 2323"): Console("server"),
+    ("docs/web.md", "rddl-server domains/ --port 2323 --web 0"): Console("server"),
     ("docs/cli.md", "rddl-client --port 2323 --instance print_jobs_inst_1"): Console(
         "client", ("domains/", "--rounds", "3")
     ),

@@ -219,7 +219,7 @@ class WebServer:
                 self.port,
             )
         else:
-            log.info("web view on http://%s:%d/", _url_host(opts.host), self.port)
+            log.debug("web view on http://%s:%d/", _url_host(opts.host), self.port)
         async with trio.open_nursery() as nursery:
             for listener in listeners:
                 nursery.start_soon(self._accept, listener, nursery)
