@@ -36,7 +36,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import resource
 import socket
 import subprocess
 import sys
@@ -54,6 +53,7 @@ from server import (  # noqa: E402  (bench/server.py: the same instance, client 
     DECL,
     INSTANCE,
     ROUND_REQUEST,
+    _open_file_limit,
     _tree,
     bench_rddl,
     free_port,
@@ -61,6 +61,7 @@ from server import (  # noqa: E402  (bench/server.py: the same instance, client 
     session_request,
     stop,
 )
+from server import start_ours as start_server  # noqa: E402
 
 ATTACKER = "127.0.0.2"
 ALL = ["silent", "drip", "half", "giant", "bomb", "flood"]
@@ -332,42 +333,19 @@ def rss_mb(pid: int) -> float:
 # ------------------------------------------------------------ the servers
 
 
-def _limit(nofile: int) -> Any:
-    def pre() -> None:
-        resource.setrlimit(resource.RLIMIT_NOFILE, (nofile, nofile))
-
-    return pre
-
-
 def start_ours(rddl: Path, folder: Path, workers: int, nofile: int) -> tuple[Any, int, Path]:
+    """rddl-server with --db and --log-dir in `folder`, its log in server.log."""
     log = folder / "server.log"
-    cmd = [
-        sys.executable,
-        "-c",
-        "from ippc.server.cli import main; main()",
-        str(rddl),
-        "--port",
-        "0",
-        "--rounds",
-        "1000000",
-        "--timeout",
-        "0",
-        "--workers",
-        str(workers),
-        "--db",
-        str(folder / "results.db"),
-        "--log-dir",
-        str(folder / "logs"),
-    ]
-    proc = subprocess.Popen(
-        cmd, stdout=subprocess.PIPE, stderr=open(log, "w"), text=True, preexec_fn=_limit(nofile)
+    proc, port = start_server(
+        rddl,
+        1000000,
+        folder / "results.db",
+        workers,
+        log_dir=folder / "logs",
+        stderr=log,
+        nofile=nofile,
     )
-    assert proc.stdout is not None
-    line = proc.stdout.readline()
-    if not line.startswith("listening on"):
-        proc.kill()
-        raise SystemExit(f"rddl-server did not start: {line!r}; see {log}")
-    return proc, int(line.rsplit(":", 1)[1]), log
+    return proc, port, log
 
 
 def start_rddlsim(classpath: str, rddl: Path, folder: Path, nofile: int) -> tuple[Any, int, Path]:
@@ -379,7 +357,7 @@ def start_rddlsim(classpath: str, rddl: Path, folder: Path, nofile: int) -> tupl
         stdout=open(log, "w"),
         stderr=subprocess.STDOUT,
         cwd=folder,
-        preexec_fn=_limit(nofile),
+        preexec_fn=_open_file_limit(nofile),
     )
     deadline = time.monotonic() + 60
     while time.monotonic() < deadline:

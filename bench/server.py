@@ -10,6 +10,7 @@ rddlsim's own throughput was measured (see PROTOCOL-rddlsim.md §11).
     python bench/server.py --clients 1 --rounds 5
     python bench/server.py --rddlsim-classpath '/path/to/rddlsim/bin:/path/to/lib/*'
     python bench/server.py --db            # the same with the SQLite result store
+    python bench/server.py --reference /path/to/other/checkout   # ours / another version
 
 The client (`NoopClients`) is the smallest thing that plays a session: plain
 blocking sockets from the `socket` module with TCP_NODELAY, one `selectors`
@@ -42,6 +43,16 @@ us/turn" is the user + system CPU time of that process and its workers
 divided by the turns.
 Memory per session is the growth of the server's RSS with `--memory-sessions`
 sessions held open at their first turn.
+
+With `--reference CHECKOUT` (another checkout of ippc, e.g. `git worktree add
+/tmp/ref COMMIT` or `git archive COMMIT | tar -x -C /tmp/ref`, with `make
+install` run there) that checkout's rddl-server is started the same way with
+its own venv (`ref`, `ref-wN`), and each line of ours is measured right next to
+the reference's in every pass (ours first in even passes, the reference first
+in odd ones). The printed ratios are ours over the reference's within each
+pass, turns/s and server CPU per turn, median and extremes over the passes: on
+a shared machine the CPU per turn is the steadier of the two, since waiting for
+a core stretches the wall clock but not the CPU a turn takes.
 """
 
 from __future__ import annotations
@@ -50,6 +61,7 @@ import argparse
 import json
 import os
 import re
+import resource
 import selectors
 import socket
 import statistics
@@ -57,6 +69,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import TypedDict
 
@@ -238,6 +251,91 @@ def play(port: int, n: int, canned: dict[str, bytes] | None = None) -> tuple[int
     return turns, secs
 
 
+# --------------------------------------------------- calls per turn
+
+# rddl-server under cProfile: SIGUSR1 starts counting, SIGUSR2 stops and
+# writes the counts to the file named by the first argument
+PROFILED = """
+import cProfile, os, signal, sys
+out = sys.argv.pop(1)
+prof = cProfile.Profile()
+def dump(*_):
+    prof.disable()
+    prof.dump_stats(out + ".tmp")
+    os.replace(out + ".tmp", out)
+signal.signal(signal.SIGUSR1, lambda *_: prof.enable())
+signal.signal(signal.SIGUSR2, dump)
+from ippc.server.cli import main
+main()
+"""
+
+
+def calls_per_turn(
+    python: str, rddl: Path, rounds: int, clients: list[int], out: Path
+) -> tuple[int, dict[str, float]]:
+    """Python function calls per turn of rddl-server (one process), by
+    function: the server runs under cProfile, counting from after a first
+    session (which compiles the instance) until `clients` sessions have
+    been played. Exact counts, whatever the machine's load: what a change
+    adds to each turn's work, and where."""
+    import pstats
+    import signal
+
+    cmd = [python, "-c", PROFILED, str(out), str(rddl), "--port", "0", "--rounds", str(rounds)]
+    proc = subprocess.Popen(
+        cmd + ["--timeout", "0", "-q", "--workers", "1"], stdout=subprocess.PIPE, text=True
+    )
+    try:
+        assert proc.stdout is not None
+        port = int(proc.stdout.readline().rsplit(":", 1)[1])
+        play(port, 1)
+        proc.send_signal(signal.SIGUSR1)
+        time.sleep(0.5)  # (the handler runs when the server's loop wakes up)
+        turns = sum(play(port, n)[0] for n in clients)
+        proc.send_signal(signal.SIGUSR2)
+        deadline = time.monotonic() + 30
+        while not out.exists() and time.monotonic() < deadline:
+            time.sleep(0.1)
+    finally:
+        stop(proc)
+    counts: dict[str, float] = {}
+    for (path, _, fn), (_, ncalls, *_rest) in pstats.Stats(str(out)).stats.items():  # type: ignore[attr-defined]
+        where = "" if path == "~" else f"{Path(path).parent.name}/{Path(path).name}:"
+        name = where + re.sub(r" at 0x[0-9a-f]+", "", fn)
+        counts[name] = counts.get(name, 0.0) + ncalls / turns
+    return turns, counts
+
+
+def print_calls(args: argparse.Namespace, ref_python: str | None) -> None:
+    """--calls: function calls per turn of ours (and of the reference)."""
+    clients = sorted(set(args.clients))
+    with tempfile.TemporaryDirectory(prefix="ippc-bench-") as tmp:
+        folder = Path(tmp)
+        rddl = bench_rddl(folder)
+        turns, ours = calls_per_turn(sys.executable, rddl, args.rounds, clients, folder / "o")
+        print(
+            f"rddl-server --workers 1, {turns} turns ({'+'.join(map(str, clients))} clients x"
+            f" {args.rounds} rounds, after a first session): {sum(ours.values()):.1f}"
+            " Python function calls per turn"
+        )
+        if ref_python is None:
+            return
+        rturns, ref = calls_per_turn(ref_python, rddl, args.rounds, clients, folder / "r")
+    total, rtotal = sum(ours.values()), sum(ref.values())
+    print(
+        f"reference {args.reference}: {rtotal:.1f} calls per turn ({rturns} turns);"
+        f" ours / reference {total / rtotal:.3f}"
+    )
+    diffs = sorted(
+        ((ours.get(k, 0.0) - ref.get(k, 0.0), k) for k in set(ours) | set(ref)),
+        key=lambda d: -abs(d[0]),
+    )
+    shown = [(d, k) for d, k in diffs if abs(d) >= 0.05][:25]
+    print("calls per turn that differ (ours - reference; functions by file and name):")
+    for d, k in shown:
+        print(f"  {d:+7.2f}  {k}  ({ours.get(k, 0.0):.2f} vs {ref.get(k, 0.0):.2f})")
+
+
 # --------------------------------------------------- the transport's floor
 
 
@@ -294,15 +392,24 @@ def _tree(pid: int) -> list[int]:
 
 
 def cpu_seconds(pid: int) -> float:
-    """User + system CPU time so far of a process and its descendants."""
-    total = 0
+    """CPU time so far of a process and its descendants: the nanoseconds
+    on a CPU of each of their threads (/proc/PID/task/TID/schedstat), or,
+    where the kernel has no schedstat, user + system time in clock ticks
+    (10 ms steps: too coarse for one session's CPU)."""
+    total = 0.0
     for p in _tree(pid):
+        try:
+            tasks = list(Path(f"/proc/{p}/task").iterdir())
+            total += sum(int((t / "schedstat").read_text().split()[0]) for t in tasks) / 1e9
+            continue
+        except (OSError, ValueError, IndexError):
+            pass
         try:
             fields = Path(f"/proc/{p}/stat").read_text().rsplit(")", 1)[1].split()
         except OSError:
             continue
-        total += int(fields[11]) + int(fields[12])
-    return total / os.sysconf("SC_CLK_TCK")
+        total += (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+    return total
 
 
 def rss_kb(pid: int) -> int:
@@ -340,10 +447,22 @@ def bench_rddl(folder: Path) -> Path:
 
 
 def start_ours(
-    rddl: Path, rounds: int, db: Path | None, workers: int = 1
+    rddl: Path,
+    rounds: int,
+    db: Path | None = None,
+    workers: int = 1,
+    *,
+    python: str = sys.executable,
+    log_dir: Path | None = None,
+    stderr: Path | None = None,
+    nofile: int | None = None,
 ) -> tuple[subprocess.Popen[str], int]:
+    """rddl-server as a user starts it, in a process of its own (`python`:
+    another checkout's interpreter, see --reference), on a free port; its
+    log goes to `stderr` at INFO (else only warnings, `-q`), its open-file
+    limit is `nofile` if given. Returns the process and its port."""
     cmd = [
-        sys.executable,
+        python,
         "-c",
         "from ippc.server.cli import main; main()",
         str(rddl),
@@ -353,19 +472,52 @@ def start_ours(
         str(rounds),
         "--timeout",
         "0",
-        "-q",
         "--workers",
         str(workers),
     ]
+    if stderr is None:
+        cmd.append("-q")
     if db is not None:
         cmd += ["--db", str(db)]
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True)
+    if log_dir is not None:
+        cmd += ["--log-dir", str(log_dir)]
+    err = open(stderr, "w") if stderr is not None else None  # noqa: SIM115 (the child's)
+    try:
+        proc = subprocess.Popen(
+            cmd,
+            stdout=subprocess.PIPE,
+            stderr=err,
+            text=True,
+            preexec_fn=None if nofile is None else _open_file_limit(nofile),
+        )
+    finally:
+        if err is not None:
+            err.close()
     assert proc.stdout is not None
     line = proc.stdout.readline()
     if not line.startswith("listening on"):
         proc.kill()
-        raise SystemExit(f"rddl-server did not start: {line!r}")
+        see = f"; see {stderr}" if stderr is not None else ""
+        raise SystemExit(f"rddl-server ({python}) did not start: {line!r}{see}")
     return proc, int(line.rsplit(":", 1)[1])
+
+
+def _open_file_limit(nofile: int) -> Callable[[], None]:
+    def pre() -> None:
+        resource.setrlimit(resource.RLIMIT_NOFILE, (nofile, nofile))
+
+    return pre
+
+
+def reference_python(checkout: Path) -> str:
+    """The interpreter of another checkout of ippc (its `make install`
+    venv), whose rddl-server --reference measures."""
+    python = checkout / ".venv" / "bin" / "python"
+    if not python.exists():
+        raise SystemExit(
+            f"--reference {checkout}: no {python} (run `make install` in that checkout first)"
+        )
+    return str(python)
 
 
 def start_canned(canned: dict[str, bytes], folder: Path) -> tuple[subprocess.Popen[str], int]:
@@ -461,6 +613,40 @@ def _row(server: str, n: int, runs: list[tuple[float, float, float, int]]) -> Ro
     }
 
 
+def _against_reference(
+    pairs: list[tuple[str, str | None]],
+    runs: dict[tuple[str, int], list[tuple[float, float, float, int]]],
+) -> list[dict[str, float | str | int]]:
+    """Ours over the reference's for each pair and number of clients: the
+    ratios of turns/s and of server CPU per turn within each pass (the two
+    runs were seconds apart), their medians and extremes."""
+    out: list[dict[str, float | str | int]] = []
+    for key, ref in pairs:
+        if ref is None:
+            continue
+        for (k, n), mine in sorted(runs.items(), key=lambda kv: kv[0][1]):
+            if k != key:
+                continue
+            theirs = runs[ref, n]
+            turns = [a[0] / b[0] for a, b in zip(mine, theirs, strict=True)]
+            cpu = [a[1] / b[1] for a, b in zip(mine, theirs, strict=True)]
+            out.append(
+                {
+                    "server": key,
+                    "clients": n,
+                    "turns_ratio": statistics.median(turns),
+                    "turns_ratio_min": min(turns),
+                    "turns_ratio_max": max(turns),
+                    "cpu_ratio": statistics.median(cpu),
+                    "cpu_ratio_min": min(cpu),
+                    "cpu_ratio_max": max(cpu),
+                    "cpu_us": statistics.median(a[1] for a in mine),
+                    "cpu_us_ref": statistics.median(b[1] for b in theirs),
+                }
+            )
+    return out
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
@@ -478,6 +664,18 @@ def main() -> None:
         "--db", action="store_true", help="run our server with --db (SQLite in a temporary folder)"
     )
     ap.add_argument("--rddlsim-classpath", default=os.environ.get("RDDLSIM_CP"))
+    ap.add_argument(
+        "--reference",
+        metavar="CHECKOUT",
+        help="another checkout of ippc with its venv (make install there): its rddl-server is"
+        " measured in every pass right next to ours, and the ratios printed",
+    )
+    ap.add_argument(
+        "--calls",
+        action="store_true",
+        help="instead of the rates: Python function calls per turn of rddl-server (cProfile;"
+        " exact whatever the load), against --reference's if given",
+    )
     ap.add_argument("--json", action="store_true")
     ap.add_argument("--echo-server", metavar="CANNED", help=argparse.SUPPRESS)
     args = ap.parse_args()
@@ -493,11 +691,20 @@ def main() -> None:
     else:
         workers = int(args.workers)
 
+    ref_python = reference_python(Path(args.reference).resolve()) if args.reference else None
+    if args.calls:
+        print_calls(args, ref_python)
+        return
     rows: list[Row] = []
+    mem_ref: float | None = None
     with tempfile.TemporaryDirectory(prefix="ippc-bench-") as tmp:
         folder = Path(tmp)
         rddl = bench_rddl(folder)
-        proc, port = start_ours(rddl, args.rounds, folder / "results.sqlite" if args.db else None)
+
+        def db(name: str) -> Path | None:
+            return folder / f"results-{name}.sqlite" if args.db else None
+
+        proc, port = start_ours(rddl, args.rounds, db("ippc"))
         procs: list[subprocess.Popen[str] | subprocess.Popen[bytes]] = [proc]
         try:
             canned: dict[str, bytes] = {}
@@ -505,15 +712,28 @@ def main() -> None:
             # memory first, before the load runs leave freed memory for reuse
             mem = memory_per_session(port, proc.pid, args.memory_sessions)
             servers: dict[str, tuple[int, int]] = {"ippc": (port, proc.pid)}
-            ours = ["ippc"]
-            if workers > 1:
-                wproc, wport = start_ours(
-                    rddl, args.rounds, folder / "results-w.sqlite" if args.db else None, workers
-                )
-                procs.append(wproc)
-                key = f"ippc-w{workers}"
-                servers[key] = (wport, wproc.pid)
-                ours.append(key)
+            # (ours, the reference's) pairs measured one right after the other
+            pairs: list[tuple[str, str | None]] = []
+            for key, n_workers in [("ippc", 1)] + (
+                [(f"ippc-w{workers}", workers)] if workers > 1 else []
+            ):
+                if key != "ippc":
+                    wproc, wport = start_ours(rddl, args.rounds, db(key), n_workers)
+                    procs.append(wproc)
+                    servers[key] = (wport, wproc.pid)
+                ref_key = None
+                if ref_python is not None:
+                    ref_key = key.replace("ippc", "ref")
+                    rproc, rport = start_ours(
+                        rddl, args.rounds, db(ref_key), n_workers, python=ref_python
+                    )
+                    procs.append(rproc)
+                    servers[ref_key] = (rport, rproc.pid)
+                    if n_workers == 1:
+                        play(rport, 1)
+                        mem_ref = memory_per_session(rport, rproc.pid, args.memory_sessions)
+                pairs.append((key, ref_key))
+            ours = [k for pair in pairs for k in pair if k is not None]
             eproc, eport = start_canned(canned, folder)
             procs.append(eproc)
             servers["canned"] = (eport, eproc.pid)
@@ -526,11 +746,19 @@ def main() -> None:
                 if p != port:
                     play(p, 1)  # warm-up (JIT for rddlsim, compiling in the workers)
             # every measurement once per pass, `repeat` passes: a load change
-            # on a shared machine hits all of them alike
+            # on a shared machine hits all of them alike; ours and the
+            # reference one right after the other, in turns first (ABBA)
             runs: dict[tuple[str, int], list[tuple[float, float, float, int]]] = {}
-            for _ in range(args.repeat):
+            others = [k for k in servers if k not in ours]
+            for i in range(args.repeat):
+                order = [
+                    k
+                    for pair in pairs
+                    for k in (pair if i % 2 == 0 else pair[::-1])
+                    if k is not None
+                ]
                 for n in sorted(set(args.clients) | {1}):
-                    for key in servers if n == 1 else ours:
+                    for key in order + others if n == 1 else order:
                         p, pid = servers[key]
                         cpu0 = cpu_seconds(pid)
                         turns, secs = play(p, n)
@@ -550,6 +778,7 @@ def main() -> None:
         finally:
             for pr in procs:
                 stop(pr)
+    against = _against_reference(pairs, runs)
 
     ref = next((r["turns_per_s"] for r in rows if r["server"] == "rddlsim"), None)
     if args.json:
@@ -562,6 +791,9 @@ def main() -> None:
                     "db": args.db,
                     "workers": workers,
                     "runs": {f"{k}/{n}": v for (k, n), v in runs.items()},
+                    "reference": args.reference,
+                    "memory_kb_per_session_reference": mem_ref,
+                    "against_reference": against,
                 },
                 indent=2,
             )
@@ -598,14 +830,14 @@ def main() -> None:
         # the same pass: seconds apart, so a change of the machine's speed
         # between passes cancels out
         for key in ours:
-            pairs = [a[0] / b[0] for a, b in zip(runs[key, 1], runs["rddlsim", 1], strict=True)]
+            within = [a[0] / b[0] for a, b in zip(runs[key, 1], runs["rddlsim", 1], strict=True)]
             best = max(r for r, _, _, _ in runs[key, 1]) / max(
                 r for r, _, _, _ in runs["rddlsim", 1]
             )
             print(
                 f"{key}: one client, ratio to rddlsim within each pass: "
-                + ", ".join(f"{x:.1f}" for x in pairs)
-                + f"  (median {statistics.median(pairs):.1f}x; best run to best run {best:.1f}x)"
+                + ", ".join(f"{x:.1f}" for x in within)
+                + f"  (median {statistics.median(within):.1f}x; best run to best run {best:.1f}x)"
             )
     for key in ours:
         line = [r for r in rows if r["server"] == key]
@@ -633,7 +865,21 @@ def main() -> None:
     )
     print(
         f"memory per open session: {mem:.1f} KiB ({args.memory_sessions} sessions held at their first turn)"
+        + (f"; reference {mem_ref:.1f} KiB" if mem_ref is not None else "")
     )
+    if against:
+        print(
+            f"against the reference {args.reference} (ref = its rddl-server), ours / reference"
+            " within each pass, median (min-max) over the passes:"
+        )
+        for a in against:
+            print(
+                f"  {a['server']:8} {a['clients']:>3} clients: turns/s {a['turns_ratio']:.3f}"
+                f" ({a['turns_ratio_min']:.2f}-{a['turns_ratio_max']:.2f}),"
+                f" server cpu per turn {a['cpu_ratio']:.3f}"
+                f" ({a['cpu_ratio_min']:.2f}-{a['cpu_ratio_max']:.2f});"
+                f" cpu us/turn {a['cpu_us']:.0f} vs {a['cpu_us_ref']:.0f}"
+            )
 
 
 if __name__ == "__main__":

@@ -17,6 +17,7 @@ from ..client.cli import parse_planner_options
 from ..kb import KBError, KnowledgeBase
 from ..planners.base import PlannerError, make_planner
 from ..rddl import RDDLError
+from ..server.cli import check_connection_options, connection_options
 from ..server.store import ResultStore, StoreError
 from .config import SensingConfig, SensingConfigError
 from .dispatcher import DispatcherError
@@ -91,6 +92,7 @@ def print_report(report: RunReport) -> None:
     show_default=True,
     help="TCP port for the planner; 0 picks a free one (--simulate always picks one).",
 )
+@connection_options
 @click.option(
     "--planner",
     default=None,
@@ -190,6 +192,10 @@ def main(
     seed: int,
     host: str,
     port: int,
+    max_connections: int | None,
+    max_connections_per_address: int | None,
+    allow: tuple[str, ...],
+    accept_rate: float,
     planner: str | None,
     planner_options: tuple[str, ...],
     prost_bin: Path | None,
@@ -230,6 +236,7 @@ def main(
         raise click.BadParameter("must be at least 0", param_hint="--planner-silence")
     if watchdog < 0:
         raise click.BadParameter("must be at least 0", param_hint="--watchdog")
+    check_connection_options(max_connections, max_connections_per_address, allow, accept_rate)
     spec: PlannerSpec | None = None
     if planner is not None or prost_bin is not None:
         spec = PlannerSpec(
@@ -282,6 +289,12 @@ def main(
             spec,
             host=host,
             port=port,
+            limits={
+                "max_connections": max_connections,
+                "max_connections_per_address": max_connections_per_address,
+                "allow": allow,
+                "accept_rate": accept_rate,
+            },
             rounds=rounds,
             timeout=timeout,
             action_timeout=action_timeout,
@@ -359,6 +372,7 @@ def _robot(
         rounds=opts["rounds"],
         timeout=opts["timeout"],
         db=opts["db"],
+        **opts["limits"],
     )
 
     def listening(bound: int) -> None:

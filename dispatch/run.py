@@ -16,7 +16,9 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import itertools
 import logging
+import math
 import signal
 import time
 from collections.abc import Awaitable, Callable, Mapping
@@ -30,8 +32,16 @@ from ..kb import KnowledgeBase
 from ..kb.jsonl import JsonlServer
 from ..kb.service import register_kb
 from ..planners.base import ExternalPlanner, Planner, PlannerError, make_planner
-from ..server.app import close_services, open_services, play_connection, serve
-from ..server.config import ServerConfig
+from ..server.app import (
+    accept_connections,
+    close_services,
+    connection_table,
+    open_services,
+    play_connection,
+    serve,
+)
+from ..server.config import DEFAULT_ACCEPT_RATE, ServerConfig
+from ..server.limits import LISTEN_BACKLOG, AcceptPacer
 from ..server.session import Services
 from .actions import Handlers
 from .clock import Clock, WallClock
@@ -158,8 +168,13 @@ def server_config(
     db: Path | None = None,
     transcripts: Path | None = None,
     individual_session: bool = True,
+    max_connections: int | None = None,
+    max_connections_per_address: int | None = None,
+    allow: tuple[str, ...] = (),
+    accept_rate: float = DEFAULT_ACCEPT_RATE,
 ) -> ServerConfig:
-    """rddl-server's settings for a dispatcher (no budget enforced by default)."""
+    """rddl-server's settings for a dispatcher (no budget enforced by
+    default; the listener's limits as rddl-server has them)."""
     return ServerConfig(
         host=host,
         port=port,
@@ -168,6 +183,10 @@ def server_config(
         individual_session=individual_session,
         db=db,
         transcripts=transcripts,
+        max_connections=max_connections,
+        max_connections_per_address=max_connections_per_address,
+        allow=tuple(allow),
+        accept_rate=accept_rate,
     )
 
 
@@ -519,50 +538,62 @@ async def _sessions(
     """Play one session after another, one at a time, on one listening
     socket that stays open for the whole run: a planner that connects while
     a session plays (a restarted one, while the dropped session is torn
-    down) waits in the backlog and is served next."""
-    listeners = await trio.open_tcp_listeners(config.port, host=config.host)
+    down) waits and is served next. The listener is rddl-server's, with its
+    limits (`config.allow`, the connection caps, counting the connections
+    waiting to be served, and the accept rate: docs/server-safety.md)."""
+    listeners = await trio.open_tcp_listeners(config.port, host=config.host, backlog=LISTEN_BACKLOG)
     port = listeners[0].socket.getsockname()[1]
-    send, receive = trio.open_memory_channel[trio.SocketStream](0)
+    table = connection_table(config)
+    pacer = AcceptPacer(config.accept_rate)
+    keys = itertools.count(1)
+    # (bounded by the table: a connection beyond its caps is refused at once)
+    send, receive = trio.open_memory_channel[tuple[trio.SocketStream, int]](math.inf)
 
-    async def accept_loop(listener: trio.SocketListener) -> None:
-        async with listener:
-            while True:
-                try:
-                    stream = await listener.accept()
-                except OSError as err:  # e.g. too many open files: wait, go on
-                    log.error("accept failed: %s", err)
-                    await trio.sleep(0.1)
-                    continue
-                await send.send(stream)
+    def take(stream: trio.SocketStream, key: int) -> bool:
+        send.send_nowait((stream, key))
+        return False
 
     async with trio.open_nursery() as nursery:
         for listener in listeners:
-            nursery.start_soon(accept_loop, listener)
+            nursery.start_soon(accept_connections, listener, svc, table, pacer, keys, take)
         task_status.started(port)
-        while not run.over:
-            if run.serving and run.goal is None:
-                await _next_goal(dispatcher, run)
-            stream = await receive.receive()
-            session = await play_connection(svc, stream)
-            status = session.status if session.status != "open" else "dropped"
-            if run.serving:
-                _served(dispatcher, run, status)
-                if status == "dropped" and run.attempt is not None:
-                    run.attempt.cancel()
+        try:
+            while not run.over:
+                if run.serving and run.goal is None:
+                    await _next_goal(dispatcher, run)
+                stream, key = await receive.receive()
+                try:
+                    session = await play_connection(svc, stream)
+                finally:
+                    table.remove(key)
+                status = session.status if session.status != "open" else "dropped"
+                if run.serving:
+                    _served(dispatcher, run, status)
+                    if status == "dropped" and run.attempt is not None:
+                        run.attempt.cancel()
+                    run.session_over(status)
+                    continue
+                if status != "dropped" or not link.reconnect:
+                    run.over = True
+                else:
+                    log.warning(
+                        "the planner's session dropped: waiting for a planner to connect again on "
+                        "%s:%d (going on from the knowledge base as it is)",
+                        config.host,
+                        port,
+                    )
+                    if run.attempt is not None:
+                        run.attempt.cancel()  # a hung planner the dispatcher started: stop it
                 run.session_over(status)
-                continue
-            if status != "dropped" or not link.reconnect:
-                run.over = True
-            else:
-                log.warning(
-                    "the planner's session dropped: waiting for a planner to connect again on "
-                    "%s:%d (going on from the knowledge base as it is)",
-                    config.host,
-                    port,
-                )
-                if run.attempt is not None:
-                    run.attempt.cancel()  # a hung planner the dispatcher started: stop it
-            run.session_over(status)
+        finally:
+            send.close()
+            while True:  # connections still waiting: closed
+                try:
+                    stream, key = receive.receive_nowait()
+                except (trio.WouldBlock, trio.EndOfChannel):
+                    break
+                stream.socket.close()
+                table.remove(key)
         nursery.cancel_scope.cancel()
 
 

@@ -12,7 +12,7 @@ import itertools
 import logging
 import signal
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -128,51 +128,70 @@ async def serve(
 
             pacer = AcceptPacer(config.accept_rate)
 
-            async def accept_loop(listener: trio.SocketListener) -> None:
-                async with listener:
-                    while True:
-                        await pacer.pace()
-                        # (one accept per pass of the scheduler: a flood of new
-                        # connections waits in the kernel's backlog while the
-                        # sessions in progress take their turns)
-                        try:
-                            stream = await listener.accept()
-                        except OSError as err:  # e.g. too many open files: wait, go on
-                            svc.notices.note(
-                                f"accept failures: {err.strerror or err}",
-                                f"accept failed: {err}",
-                                logging.ERROR,
-                            )
-                            await trio.sleep(0.1)
-                            continue
-                        host = peer_host(stream.socket)
-                        refused = table.refusal(host)
-                        if refused is not None:
-                            svc.notices.note(*refused)
-                            stream.socket.close()
-                            continue
-                        if closed_already(stream.socket):
-                            # numbered all the same, as rddlsim numbers it
-                            sid = svc.new_session_id()
-                            svc.notices.note(
-                                EMPTY_CLOSE,
-                                f"session {sid} ({host}): the client closed the connection"
-                                " before its session-request",
-                            )
-                            stream.socket.close()
-                            continue
-                        key = next(keys)
-                        table.add(key, host)
-                        nursery.start_soon(handler, stream, key)
-                        if config.individual_session:
-                            return
+            def take(stream: trio.SocketStream, key: int) -> bool:
+                nursery.start_soon(handler, stream, key)
+                return config.individual_session
 
             for listener in listeners:
-                nursery.start_soon(accept_loop, listener)
+                nursery.start_soon(accept_connections, listener, svc, table, pacer, keys, take)
             task_status.started(port)
     finally:
         close_services(svc, reason, close=owned)
     return svc
+
+
+async def accept_connections(
+    listener: trio.SocketListener,
+    svc: Services,
+    table: ConnectionTable,
+    pacer: AcceptPacer,
+    keys: Iterator[int],
+    take: Callable[[trio.SocketStream, int], bool],
+) -> None:
+    """Accept connections on `listener` until cancelled, under the limits:
+    at most `pacer`'s rate, refused at once (closed, counted in
+    `svc.notices`) when `table` refuses their address or is full, counted
+    and closed when the peer closed before it was accepted. Each connection
+    let in is added to `table` under a key from `keys` and handed to
+    `take(stream, key)`, which must remove the key from the table when the
+    connection ends; `take` returns True to stop accepting. (rddl-server's
+    listener and rddl-dispatch's.)"""
+    async with listener:
+        while True:
+            await pacer.pace()
+            # (one accept per pass of the scheduler: a flood of new
+            # connections waits in the kernel's backlog while the
+            # sessions in progress take their turns)
+            try:
+                stream = await listener.accept()
+            except OSError as err:  # e.g. too many open files: wait, go on
+                svc.notices.note(
+                    f"accept failures: {err.strerror or err}",
+                    f"accept failed: {err}",
+                    logging.ERROR,
+                )
+                await trio.sleep(0.1)
+                continue
+            host = peer_host(stream.socket)
+            refused = table.refusal(host)
+            if refused is not None:
+                svc.notices.note(*refused)
+                stream.socket.close()
+                continue
+            if closed_already(stream.socket):
+                # numbered all the same, as rddlsim numbers it
+                sid = svc.new_session_id()
+                svc.notices.note(
+                    EMPTY_CLOSE,
+                    f"session {sid} ({host}): the client closed the connection"
+                    " before its session-request",
+                )
+                stream.socket.close()
+                continue
+            key = next(keys)
+            table.add(key, host)
+            if take(stream, key):
+                return
 
 
 def connection_table(config: ServerConfig) -> ConnectionTable:

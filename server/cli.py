@@ -4,8 +4,9 @@ from __future__ import annotations
 
 import logging
 import sys
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import click
 import trio
@@ -27,6 +28,68 @@ from .config import (
 from .limits import parse_networks
 from .registry import Registry
 from .workers import WorkerError, default_workers, serve_with_workers, supported
+
+# the listener's limits (docs/server-safety.md): rddl-server's and rddl-dispatch's
+_CONNECTION_OPTIONS = [
+    click.option(
+        "--max-connections",
+        type=int,
+        default=None,
+        metavar="N",
+        help="Open connections at most; more are refused at once [default: from the open-file limit].",
+    ),
+    click.option(
+        "--max-connections-per-address",
+        type=int,
+        default=None,
+        metavar="N",
+        help="Open connections from one address at most [default: half of --max-connections].",
+    ),
+    click.option(
+        "--allow",
+        multiple=True,
+        metavar="CIDR",
+        help="Accept connections only from this network (repeatable); default: any address.",
+    ),
+    click.option(
+        "--accept-rate",
+        type=float,
+        default=DEFAULT_ACCEPT_RATE,
+        show_default=True,
+        help="New connections a second the listener accepts at most (bursts of half that); more wait in the backlog; 0 = no limit.",
+    ),
+]
+
+F = TypeVar("F", bound=Callable[..., Any])
+
+
+def connection_options(f: F) -> F:
+    """The listener's options: --max-connections, --max-connections-per-address,
+    --allow and --accept-rate (check them with `check_connection_options`)."""
+    for option in reversed(_CONNECTION_OPTIONS):
+        f = option(f)
+    return f
+
+
+def check_connection_options(
+    max_connections: int | None,
+    max_connections_per_address: int | None,
+    allow: tuple[str, ...],
+    accept_rate: float,
+) -> None:
+    """click.BadParameter for a bad value of `connection_options`."""
+    for name, n in (
+        ("--max-connections", max_connections),
+        ("--max-connections-per-address", max_connections_per_address),
+    ):
+        if n is not None and n < 1:
+            raise click.BadParameter("must be at least 1", param_hint=name)
+    if accept_rate < 0:
+        raise click.BadParameter("must be 0 (no limit) or positive", param_hint="--accept-rate")
+    try:
+        parse_networks(allow)
+    except ValueError as err:
+        raise click.BadParameter(str(err), param_hint="--allow") from None
 
 
 @click.command(context_settings={"help_option_names": ["-h", "--help"]})
@@ -94,39 +157,13 @@ from .workers import WorkerError, default_workers, serve_with_workers, supported
     show_default=True,
     help="Close a session whose client has not finished a message this many seconds after its first byte; 0 = off.",
 )
-@click.option(
-    "--max-connections",
-    type=int,
-    default=None,
-    metavar="N",
-    help="Open connections at most; more are refused at once [default: from the open-file limit].",
-)
-@click.option(
-    "--max-connections-per-address",
-    type=int,
-    default=None,
-    metavar="N",
-    help="Open connections from one address at most [default: half of --max-connections].",
-)
-@click.option(
-    "--allow",
-    multiple=True,
-    metavar="CIDR",
-    help="Accept connections only from this network (repeatable); default: any address.",
-)
+@connection_options
 @click.option(
     "--max-buffered-mib",
     type=float,
     default=DEFAULT_MAX_BUFFERED / (1 << 20),
     show_default=True,
     help="MiB of unfinished messages over all sessions beyond 64 KiB each; a connection that needs more is closed.",
-)
-@click.option(
-    "--accept-rate",
-    type=float,
-    default=DEFAULT_ACCEPT_RATE,
-    show_default=True,
-    help="New connections a second the listener accepts at most (bursts of half that); more wait in the backlog; 0 = no limit.",
 )
 @click.option(
     "--busy-poll-us",
@@ -187,20 +224,9 @@ def main(
     ):
         if value < 0:
             raise click.BadParameter("must be 0 (off) or positive", param_hint=name)
-    for name, n in (
-        ("--max-connections", max_connections),
-        ("--max-connections-per-address", max_connections_per_address),
-    ):
-        if n is not None and n < 1:
-            raise click.BadParameter("must be at least 1", param_hint=name)
-    if accept_rate < 0:
-        raise click.BadParameter("must be 0 (no limit) or positive", param_hint="--accept-rate")
+    check_connection_options(max_connections, max_connections_per_address, allow, accept_rate)
     if max_buffered_mib <= 0:
         raise click.BadParameter("must be positive", param_hint="--max-buffered-mib")
-    try:
-        parse_networks(allow)
-    except ValueError as err:
-        raise click.BadParameter(str(err), param_hint="--allow") from None
     if not 0 <= busy_poll_us <= 10_000:
         raise click.BadParameter("must be between 0 and 10000", param_hint="--busy-poll-us")
     n_workers = _workers(workers, individual_session)
