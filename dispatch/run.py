@@ -566,6 +566,10 @@ async def _sessions(
                     session = await play_connection(svc, stream)
                 finally:
                     table.remove(key)
+                if not session.requested:
+                    # never a session (a port scan, a client that hung up or said
+                    # nothing): counted in the log, not a planner lost; the run goes on
+                    continue
                 status = session.status if session.status != "open" else "dropped"
                 if run.serving:
                     _served(dispatcher, run, status)

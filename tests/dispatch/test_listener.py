@@ -14,6 +14,7 @@ from typing import Any
 import pytest
 import trio
 from click.testing import CliRunner
+from ippc.client.session import ClientConfig, run_session
 from ippc.dispatch.actions import Dispatch, Status
 from ippc.dispatch.cli import main
 from ippc.dispatch.run import (
@@ -25,6 +26,7 @@ from ippc.dispatch.run import (
     server_config,
 )
 from ippc.kb import KnowledgeBase
+from ippc.planners.base import make_planner
 from ippc.protocol import SessionRequest, encode
 from ippc.server.config import DEFAULT_ACCEPT_RATE, ServerConfig
 
@@ -67,10 +69,10 @@ async def start_session(stream: trio.SocketStream, client: str) -> bytes:
     return await stream.receive_some(65536)
 
 
-async def serving(config: ServerConfig, body: Any) -> tuple[RunReport, Any]:
-    """Run a dispatcher (reconnecting after a dropped session) with
-    `config`, call `body(port)`, then stop it; its report and what `body`
-    returned."""
+async def serving(config: ServerConfig, body: Any, reconnect: bool = True) -> tuple[RunReport, Any]:
+    """Run a dispatcher with `config` (waiting for a planner again after a
+    dropped session, or with `reconnect` False ending the run), call
+    `body(port)`, then stop it; its report and what `body` returned."""
     ports: list[int] = []
     stop = trio.Event()
     box: list[RunReport] = []
@@ -84,7 +86,7 @@ async def serving(config: ServerConfig, body: Any) -> tuple[RunReport, Any]:
                         None,
                         config,
                         on_listening=ports.append,
-                        link=LinkPolicy(reconnect=True),
+                        link=LinkPolicy(reconnect=reconnect),
                         stop=stop,
                     )
                 )
@@ -93,7 +95,12 @@ async def serving(config: ServerConfig, body: Any) -> tuple[RunReport, Any]:
             while not ports:
                 await trio.sleep(0.01)
             out = await body(ports[0])
-            stop.set()
+            if not reconnect:  # the run ends by itself after its session
+                with trio.move_on_after(10):
+                    while not box:
+                        await trio.sleep(0.01)
+            if not box:
+                stop.set()
     return box[0], out
 
 
@@ -137,6 +144,33 @@ def test_allow_and_the_caps_refuse_at_once_and_the_waiting_planner_is_served(cap
     assert "connection from 127.0.0.2 refused: cap of 2 per address reached" in text
     assert "connection from 127.0.0.3 refused: cap of 3 open connections reached" in text
     assert "connection from 127.0.0.1 refused: address not in --allow" in text
+
+
+def test_a_connection_without_a_session_request_is_no_planner_lost(caplog) -> None:
+    """Under --on-planner-loss exit, connections that never sent a
+    session-request (one hung up after a byte, one sent something else) do
+    not end the run: the planner that comes next plays its session."""
+    caplog.set_level(logging.INFO)
+    config = server_config(rounds=1)
+
+    async def body(port: int) -> None:
+        hung_up = await connect_from("127.0.0.2", port)
+        await hung_up.send_all(b"<")
+        await trio.sleep(0.2)  # accepted with its byte, then gone
+        await hung_up.aclose()
+        other = await connect_from("127.0.0.2", port)
+        await other.send_all(b'<?xml version="1.0"?><round-request/>\0')
+        assert await closed_within(other, 10)
+        await run_session(
+            ClientConfig(port=port, instance="courier_one", timeout=30.0),
+            make_planner("exact", {}),  # type: ignore[arg-type]
+            "exact",
+        )
+
+    report, _ = trio.run(serving, config, body, False)
+    assert report.sessions == ["finished"] and report.turns > 0 and report.interrupted is None
+    text = "\n".join(r.getMessage() for r in caplog.records)
+    assert "expected <session-request> but received <round-request>" in text
 
 
 def test_the_listener_paces_new_connections() -> None:
