@@ -19,10 +19,12 @@ from __future__ import annotations
 
 import hashlib
 import logging
+import math
 import os
 import signal
 import subprocess
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from functools import partial
 from pathlib import Path
@@ -30,11 +32,11 @@ from typing import Any
 
 import trio
 
-from ..server.store import encode_fluents
+from ..server.store import ResultStore, encode_fluents
 from .experiment import Experiment, PlannerSpec, fill_command
 from .instances import ResolvedInstance
 
-__all__ = ["Job", "JobResult", "build_jobs", "run_job", "stable_seed"]
+__all__ = ["Job", "JobResult", "ProgressQueue", "Reporter", "build_jobs", "run_job", "stable_seed"]
 
 log = logging.getLogger(__name__)
 
@@ -121,6 +123,60 @@ def build_jobs(
 
 # ---------------------------------------------------------------- in the worker
 
+#: What a job tells of its session's progress: (job key, round, turn); turn None when
+#: the round has just begun. Best effort: it must never slow or fail the job.
+Reporter = Callable[[str, int, int | None], None]
+
+
+class ProgressQueue:
+    """A `Reporter` for worker processes: puts ``(key, round, turn)`` on a queue the
+    batch's parent reads (a ``multiprocessing.Manager`` queue: it pickles into a
+    worker), at most once per `period` seconds per job besides each round's start,
+    never waiting (a full or closed queue loses the report, not the job)."""
+
+    def __init__(self, queue: Any, period: float = 0.25) -> None:
+        self.queue = queue
+        self.period = period
+        self._last = -math.inf
+
+    def __call__(self, key: str, round_num: int, turn: int | None) -> None:
+        now = time.monotonic()
+        if turn is not None and now - self._last < self.period:
+            return
+        self._last = now
+        try:
+            self.queue.put_nowait((key, round_num, turn))
+        except Exception:  # noqa: BLE001 - progress is best effort
+            log.debug("progress of %s not reported", key, exc_info=True)
+
+
+class _ReportingStore(ResultStore):
+    """The job's in-memory store, telling `report` of each round and turn it records."""
+
+    def __init__(self, key: str, report: Reporter) -> None:
+        super().__init__(":memory:", owner=f"batch:{key}")
+        self._key = key
+        self._report = report
+        self._round_num: dict[int, int] = {}
+
+    def start_round(self, session: int, *, round_num: int, counted: bool, started_at: float) -> int:
+        rid = super().start_round(
+            session, round_num=round_num, counted=counted, started_at=started_at
+        )
+        self._round_num[rid] = round_num
+        self._tell(round_num, None)
+        return rid
+
+    def record_step(self, round_: int, *, turn_num: int, **values: Any) -> None:
+        super().record_step(round_, turn_num=turn_num, **values)
+        self._tell(self._round_num.get(round_, 0), turn_num)
+
+    def _tell(self, round_num: int, turn: int | None) -> None:
+        try:
+            self._report(self._key, round_num, turn)
+        except Exception:  # noqa: BLE001 - progress is best effort
+            log.debug("progress of %s not reported", self._key, exc_info=True)
+
 
 def _registry(job: Job) -> Any:
     from ..rddl import check_files, check_pair
@@ -138,13 +194,15 @@ def _registry(job: Job) -> Any:
     raise ValueError(f"instance {job.instance} is no longer in {', '.join(job.files)}")
 
 
-def run_job(job: Job) -> JobResult:
-    """Play the job's session (see the module doc); never raises for a failed session."""
+def run_job(job: Job, report: Reporter | None = None) -> JobResult:
+    """Play the job's session (see the module doc); never raises for a failed session.
+    `report` hears of each round and turn of a session played against the job's own
+    server (one played against ``--server`` is not seen turn by turn)."""
     started = time.time()
     try:
         if job.server is not None:
             return _run_against(job, started)
-        return _run_own_server(job, started)
+        return _run_own_server(job, started, report)
     except (KeyboardInterrupt, SystemExit):
         raise
     except BaseException as err:
@@ -159,11 +217,10 @@ def run_job(job: Job) -> JobResult:
         return JobResult(job.key, "failed", _leaf_text(err), started, time.time())
 
 
-def _run_own_server(job: Job, started: float) -> JobResult:
+def _run_own_server(job: Job, started: float, report: Reporter | None = None) -> JobResult:
     from ..server.app import serve
     from ..server.config import ServerConfig
     from ..server.session import Services
-    from ..server.store import ResultStore
 
     registry = _registry(job)
     config = ServerConfig(
@@ -174,7 +231,11 @@ def _run_own_server(job: Job, started: float) -> JobResult:
         timeout=job.timeout,
         individual_session=True,
     )
-    store = ResultStore(":memory:", owner=f"batch:{job.key}")
+    store = (
+        ResultStore(":memory:", owner=f"batch:{job.key}")
+        if report is None
+        else _ReportingStore(job.key, report)
+    )
     services = Services(config, registry, store=store)
     try:
 

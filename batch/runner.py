@@ -17,6 +17,12 @@ second run on the same database is refused at once naming the first one's proces
 job is played twice at once (a second run would also take the first's running jobs for
 left over, and play them again).
 
+An observer (`BatchObserver`, such as the web page's `batch.live.BatchLive`) hears
+of the run, of each job handed out, of each serial or local-pool job's rounds and turns
+(from the worker processes through a ``multiprocessing.Manager`` queue, read by a
+thread of this process), and of each result once it is in the database. What it does
+never stops the batch: its errors are logged.
+
 Ctrl-C (KeyboardInterrupt) stops the batch: jobs not started are not started, jobs
 running are stopped (their workers are ended) and marked ``interrupted``, and every job
 that finished is already in the database. Running again resumes.
@@ -31,20 +37,21 @@ import multiprocessing
 import os
 import signal
 import sys
+import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 from .experiment import Experiment, ExperimentError
 from .instances import ResolvedInstance, resolve_instances
-from .jobs import Job, JobResult, build_jobs, run_job
+from .jobs import Job, JobResult, ProgressQueue, Reporter, build_jobs, run_job
 from .progress import Progress
 from .results import DONE, BatchStore
 
-__all__ = ["BatchSummary", "ClusterError", "run_batch"]
+__all__ = ["BatchObserver", "BatchSummary", "ClusterError", "run_batch"]
 
 log = logging.getLogger(__name__)
 
@@ -70,19 +77,83 @@ class BatchSummary:
     failed_before: int = 0  # failed in an earlier run and not played again (no retry_failed)
 
 
+class BatchObserver(Protocol):
+    """What `run_batch` tells an observer, in its own thread (`job_progress` comes from
+    another thread of this process)."""
+
+    def batch_started(self, experiment: str, jobs: list[Job], store: BatchStore) -> None: ...
+
+    def job_started(self, job: Job) -> None: ...
+
+    def job_progress(self, key: str, round_num: int, turn: int | None) -> None: ...
+
+    def job_ended(self, result: JobResult) -> None: ...
+
+    def jobs_interrupted(self, keys: Iterable[str], reason: str) -> None: ...
+
+    def batch_ended(self, interrupted: bool) -> None: ...
+
+
+def _tell(observer: BatchObserver | None, what: str, *args: Any) -> None:
+    """Call `observer.what(*args)`; an error is logged, never raised into the batch."""
+    if observer is None:
+        return
+    try:
+        getattr(observer, what)(*args)
+    except Exception:
+        log.exception("the batch's observer failed in %s", what)
+
+
+class _ProgressRelay:
+    """Worker processes' round-and-turn reports to an observer: a Manager queue the
+    workers put on and a thread of this process that reads it."""
+
+    def __init__(self, observer: BatchObserver) -> None:
+        self._observer = observer
+        self._manager = multiprocessing.get_context("spawn").Manager()
+        self._queue = self._manager.Queue(maxsize=10000)
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._read, name="batch-progress", daemon=True)
+        self._thread.start()
+
+    def reporter(self) -> Reporter:
+        return ProgressQueue(self._queue)
+
+    def _read(self) -> None:
+        import queue as queues
+
+        while not self._stop.is_set():
+            try:
+                key, round_num, turn = self._queue.get(timeout=0.2)
+            except queues.Empty:
+                continue
+            except (EOFError, OSError):  # the manager is gone
+                return
+            _tell(self._observer, "job_progress", key, round_num, turn)
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(5)
+        self._manager.shutdown()
+
+
 def _worker_init() -> None:
     # The parent owns Ctrl-C: a terminal's SIGINT reaches the whole process group, and
     # a worker that died of it would only make noise. The parent ends workers itself.
     signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
-def _serial(jobs: list[Job], started: Callable[[Job], None]) -> Iterator[JobResult]:
+def _serial(
+    jobs: list[Job], started: Callable[[Job], None], report: Reporter | None = None
+) -> Iterator[JobResult]:
     for job in jobs:
         started(job)
-        yield run_job(job)
+        yield run_job(job, report)
 
 
-def _pool(jobs: list[Job], n: int, started: Callable[[Job], None]) -> Iterator[JobResult]:
+def _pool(
+    jobs: list[Job], n: int, started: Callable[[Job], None], report: Reporter | None = None
+) -> Iterator[JobResult]:
     ctx = multiprocessing.get_context("spawn")
     pool = ProcessPoolExecutor(max_workers=n, mp_context=ctx, initializer=_worker_init)
     pending = list(jobs)
@@ -93,7 +164,7 @@ def _pool(jobs: list[Job], n: int, started: Callable[[Job], None]) -> Iterator[J
             # Ctrl-C leaves the rest unstarted
             while pending and len(running) < n:
                 job = pending.pop(0)
-                running[pool.submit(run_job, job)] = job
+                running[pool.submit(run_job, job, report)] = job
                 started(job)
             done, _ = wait(running, return_when=FIRST_COMPLETED)
             for fut in done:
@@ -200,6 +271,7 @@ def run_batch(
     log_dir: str | Path | None = None,
     progress: Progress | None = None,
     instances: list[ResolvedInstance] | None = None,
+    observer: BatchObserver | None = None,
 ) -> BatchSummary:
     """Play every job of `experiment` not yet done, storing results in `db`.
 
@@ -207,7 +279,8 @@ def run_batch(
     or on ``cluster`` (a scheduler address or a ``distributed.Client``). ``server``
     plays against an existing server instead of one per job. Raises `ExperimentError`
     for instances that do not resolve, before anything runs (``instances``: already
-    resolved by `check_experiment`)."""
+    resolved by `check_experiment`). ``observer`` hears of the run as it goes (see the
+    module doc)."""
     t0 = time.monotonic()
     if instances is None:
         instances = resolve_instances(experiment)
@@ -244,17 +317,27 @@ def run_batch(
         prog.start(total=len(all_jobs), done=skipped + failed_before, failed=failed_before)
         finished = failed = 0
         interrupted = False
+        _tell(observer, "batch_started", experiment.name, all_jobs, store)
 
         def started(job: Job) -> None:
             store.mark(experiment.name, [job.key], "running")
             prog.started()
+            _tell(observer, "job_started", job)
 
+        relay: _ProgressRelay | None = None
+        report: Reporter | None = None
+        if observer is not None and cluster is None and todo:
+            if n <= 1:
+                report = observer.job_progress
+            else:
+                relay = _ProgressRelay(observer)
+                report = relay.reporter()
         if cluster is not None:
             results = _dask(todo, cluster, started)
         elif n <= 1:
-            results = _serial(todo, started)
+            results = _serial(todo, started, report)
         else:
-            results = _pool(todo, n, started)
+            results = _pool(todo, n, started, report)
         try:
             for result in results:
                 store.import_result(experiment.name, result)
@@ -264,6 +347,7 @@ def run_batch(
                     failed += 1
                     log.warning("%s failed: %s", result.key, result.reason)
                 prog.ended(failed=result.status not in DONE)
+                _tell(observer, "job_ended", result)
         except KeyboardInterrupt:
             interrupted = True
             close = getattr(results, "close", None)
@@ -271,8 +355,12 @@ def run_batch(
                 close()  # stops the workers (the generators' finally)
             running = [r.job_key for r in store.jobs(experiment.name) if r.status == "running"]
             store.mark(experiment.name, running, "interrupted", "stopped by Ctrl-C")
+            _tell(observer, "jobs_interrupted", running, "stopped by Ctrl-C")
         finally:
             prog.close()
+            if relay is not None:
+                relay.close()
+            _tell(observer, "batch_ended", interrupted)
     return BatchSummary(
         len(all_jobs),
         skipped,

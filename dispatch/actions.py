@@ -162,6 +162,28 @@ class Handlers:
         #: what runs now, by dispatch id ("the handler of move(r1,hall,lab)"):
         #: the watchdog names it when the event loop is blocked
         self.running: dict[int, str] = {}
+        self._watchers: list[Callable[[str, dict[str, Any]], None]] = []
+
+    def watch(self, watcher: Callable[[str, dict[str, Any]], None]) -> Callable[[], None]:
+        """Call `watcher(kind, data)` when a dispatch starts ("action-started":
+        id, turn, action, timeout) and ends ("action-ended": id, turn,
+        action, status, message, duration, cost), as plain data; returns the
+        function that stops it. One that raises is logged, never the
+        action's business."""
+        self._watchers.append(watcher)
+
+        def unwatch() -> None:
+            if watcher in self._watchers:
+                self._watchers.remove(watcher)
+
+        return unwatch
+
+    def _tell(self, kind: str, data: dict[str, Any]) -> None:
+        for watcher in list(self._watchers):
+            try:
+                watcher(kind, data)
+            except Exception:
+                log.exception("a handlers watcher failed on %s", kind)
 
     def register(self, action: str, handler: ActionHandler) -> Callable[[], None]:
         """Handle `action` (an action fluent's name, "noop" or "*") with
@@ -189,6 +211,34 @@ class Handlers:
         return iter(sorted(self._handlers))
 
     async def run(self, dispatch: Dispatch) -> Result:
+        """`_run`, told to the watchers (see `watch`)."""
+        if self._watchers:
+            self._tell(
+                "action-started",
+                {
+                    "id": dispatch.id,
+                    "turn": dispatch.turn,
+                    "action": str(dispatch.action),
+                    "timeout": dispatch.timeout,
+                },
+            )
+        result = await self._run(dispatch)
+        if self._watchers:
+            self._tell(
+                "action-ended",
+                {
+                    "id": dispatch.id,
+                    "turn": dispatch.turn,
+                    "action": str(dispatch.action),
+                    "status": result.status.value,
+                    "message": result.message,
+                    "duration": result.duration,
+                    "cost": result.cost,
+                },
+            )
+        return result
+
+    async def _run(self, dispatch: Dispatch) -> Result:
         """Run the handler of `dispatch` within its timeout (wall-clock
         seconds: a hung handler is a real hang); every way it can go wrong
         becomes a failed or timed-out `Result` that says what happened. The

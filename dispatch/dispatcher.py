@@ -35,6 +35,10 @@ The reward sent with the next turn is the model's R(s, a) for the state sent
 and the actions dispatched. Everything a turn did is in `Outcome.record`,
 which the session stores with the step (`steps.outcome` in the result
 store) and which `executed` keeps for the report.
+
+Watchers (`Dispatcher.watch`, the web page's `dispatch.live`) hear of each
+session opened and closed, each round, each turn sent and each turn's
+record with its reward, as plain data, in the event loop's thread.
 """
 
 from __future__ import annotations
@@ -42,7 +46,7 @@ from __future__ import annotations
 import logging
 import time
 from collections import deque
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -167,6 +171,9 @@ class ExecutedAction:
         return d
 
 
+#: A watcher of a dispatcher: called with the event's kind and its JSON-able data.
+Watcher = Callable[[str, dict[str, Any]], None]
+
 #: Dispatched actions a dispatcher keeps for its report (the last ones); the
 #: result store has every one. A dispatcher that runs for a shift must not
 #: grow with the number of turns it played.
@@ -249,6 +256,7 @@ class Dispatcher(Environment):
         self._next_id = 0
         self._keys = {p.name: parameter_keys(model, p.name) for p in self.sim.action_fluents}
         self._state_vars: dict[str, PVariable] = {p.name: p for p in model.fluents(STATE)}
+        self._watchers: list[Watcher] = []
         stochastic = sorted(
             n for n in self._state_vars if n not in self.draw_free and not kb.is_sensed(n)
         )
@@ -258,6 +266,29 @@ class Dispatcher(Environment):
                 "values only from whoever writes them): %s",
                 ", ".join(stochastic),
             )
+
+    # -- watchers
+
+    def watch(self, watcher: Watcher) -> Callable[[], None]:
+        """Call `watcher(kind, data)` for each session ("session-opened",
+        "session-closed"), round ("round"), turn sent ("turn-sent") and turn
+        played ("turn": its record and reward); returns the function that
+        stops it."""
+        self._watchers.append(watcher)
+
+        def unwatch() -> None:
+            if watcher in self._watchers:
+                self._watchers.remove(watcher)
+
+        return unwatch
+
+    def tell(self, kind: str, data: dict[str, Any]) -> None:
+        """Tell the watchers; one that raises is logged and the others still hear."""
+        for watcher in list(self._watchers):
+            try:
+                watcher(kind, data)
+            except Exception:
+                log.exception("a dispatcher watcher failed on %s", kind)
 
     # -- Environments (the server's registry)
 
@@ -269,6 +300,7 @@ class Dispatcher(Environment):
         return self
 
     async def open(self, seed: int) -> Episode:
+        self.tell("session-opened", {"seed": seed})
         return DispatchEpisode(self, seed)
 
     def refresh(self) -> None:
@@ -341,16 +373,27 @@ class DispatchEpisode(Episode):
     def start_round(self) -> None:
         self.round += 1
         self.d.stats.rounds += 1
+        self.d.tell("round", {"round": self.round})
 
     def turn(self) -> tuple[list[WireFluent] | None, str | None]:
         self.d.refresh()
         self.snapshot = self.d.kb.to_state()
-        return self.d.listing(self.snapshot)
+        listing = self.d.listing(self.snapshot)
+        self.d.tell("turn-sent", {"round": self.round, "turn": self.d.stats.turns + 1})
+        return listing
+
+    def close(self) -> None:
+        self.d.tell("session-closed", {"rounds": self.round})
+
+    async def act(self, actions: Actions) -> Outcome:
+        outcome = await self._act(actions)
+        self.d.tell("turn", {**outcome.record, "reward": outcome.reward})
+        return outcome
 
     def thinking(self) -> None:
         self._sent_at = time.perf_counter()
 
-    async def act(self, actions: Actions) -> Outcome:
+    async def _act(self, actions: Actions) -> Outcome:
         d = self.d
         stats = d.stats
         stats.planning_seconds += time.perf_counter() - self._sent_at
