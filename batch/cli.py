@@ -6,10 +6,12 @@ import json
 import logging
 import sys
 from pathlib import Path
+from typing import Any
 
 import click
 
 from ..server.store import StoreError
+from ..web import WebOptions, web_options, web_url
 from .experiment import ExperimentError
 from .instances import check_experiment
 from .progress import format_duration
@@ -103,6 +105,14 @@ def _host_port(value: str | None, what: str) -> tuple[str, int] | None:
     help="Folder for external planners' output (default: DB.logs beside the database).",
 )
 @click.option("-v", "--verbose", is_flag=True, help="Log every session.")
+@web_options
+@click.option(
+    "--rules",
+    type=click.Choice(sorted(RULES)),
+    default="ippc2014",
+    show_default=True,
+    help="With --web: the scoring rules of the page's live scores.",
+)
 def run(
     experiment_file: Path,
     db: Path,
@@ -112,6 +122,9 @@ def run(
     retry_failed: bool,
     logs: Path | None,
     verbose: bool,
+    web: int | None,
+    web_host: str | None,
+    rules: str,
 ) -> None:
     """Play every planner on every instance of EXPERIMENT_FILE; again, to resume."""
     from .runner import ClusterError, run_batch
@@ -119,8 +132,13 @@ def run(
     _setup_logging(verbose)
     if cluster is not None and server is not None:
         raise click.UsageError("--cluster and --server do not go together")
+    options = WebOptions.from_cli(web, web_host)
+    page = None
     try:
         experiment, instances = check_experiment(experiment_file)  # every problem at once
+        observer = None
+        if options is not None:
+            page, observer = _start_page(options, rules)
         summary = run_batch(
             experiment,
             db,
@@ -130,6 +148,7 @@ def run(
             server=_host_port(server, "--server"),
             retry_failed=retry_failed,
             log_dir=logs or db.with_name(db.name + ".logs"),
+            observer=observer,
         )
     except ExperimentError as err:
         for problem in err.problems:
@@ -139,6 +158,9 @@ def run(
         raise click.ClickException(f"--db {db}: {err}") from None
     except ClusterError as err:
         raise click.ClickException(f"--cluster: {err}") from None
+    finally:
+        if page is not None:
+            page.stop()
     done = summary.skipped + summary.finished
     failed = f"{summary.failed} failed"
     if summary.failed_before:
@@ -154,6 +176,23 @@ def run(
     if summary.interrupted:
         click.echo("interrupted: run the same command again to resume", err=True)
         raise SystemExit(130)
+
+
+def _start_page(options: WebOptions, rules: str) -> tuple[Any, Any]:
+    """The web page of a run (in a thread of its own, see batch/web.py) and its observer."""
+    from .live import BatchLive
+    from .web import BatchWeb
+
+    live = BatchLive(rules)
+    page = BatchWeb(live, options)
+    try:
+        port = page.start()
+    except OSError as err:
+        raise click.ClickException(
+            f"--web: cannot listen on {options.host}:{options.port}: {err.strerror or err}"
+        ) from None
+    click.echo(f"web view on {web_url(options, port)}", err=True)
+    return page, live
 
 
 def _database(db: Path | None, logs: tuple[Path, ...]) -> Path | None:

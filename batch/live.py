@@ -282,6 +282,17 @@ class BatchLive:
                 "figures": self._figures,
             }
 
+    def planners(self) -> list[str]:
+        """The planners' labels, in the grid's order."""
+        with self._lock:
+            return list(self._planners)
+
+    def job(self, key: str) -> dict[str, Any] | None:
+        """One job's entry as the snapshot has it (None: no such job)."""
+        with self._lock:
+            entry = self._jobs.get(key)
+            return None if entry is None else dict(entry)
+
     def _counts(self) -> dict[str, int]:
         counts = dict.fromkeys(STATUSES, 0)
         for e in self._jobs.values():
