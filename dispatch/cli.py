@@ -19,6 +19,7 @@ from ..planners.base import PlannerError, make_planner
 from ..rddl import RDDLError
 from ..server.cli import check_connection_options, connection_options
 from ..server.store import ResultStore, StoreError
+from ..web import WebOptions, web_options, web_url
 from .config import SensingConfig, SensingConfigError
 from .dispatcher import DispatcherError
 from .run import (
@@ -183,6 +184,7 @@ def print_report(report: RunReport) -> None:
     help="With --plan-of: the session's id in the store (default: the last one).",
 )
 @click.option("-q", "--quiet", is_flag=True, help="Log warnings only.")
+@web_options
 def main(
     domain: Path | None,
     instance: Path | None,
@@ -215,6 +217,8 @@ def main(
     plan_of: Path | None,
     session_id: int | None,
     quiet: bool,
+    web: int | None,
+    web_host: str | None,
 ) -> None:
     """Serve the knowledge base of DOMAIN and INSTANCE to an IPPC planner and
     execute the actions it sends (see docs/robot.md)."""
@@ -253,6 +257,7 @@ def main(
         )
     if db is not None:
         _check_db(db)
+    page = _page(WebOptions.from_cli(web, web_host))
     if simulate:
         if serve_goals:
             raise click.BadParameter(
@@ -275,11 +280,15 @@ def main(
                 action_timeout=action_timeout,
                 stop_at_goal=not no_stop_at_goal,
                 handle_signals=True,
+                web=page,
             )
         except (RDDLError, KBError) as err:
             raise click.ClickException(str(err)) from None
         except DispatcherError as err:
             raise click.ClickException(f"{instance}: {err}") from None
+        except BaseException as exc:
+            _listen_error(exc)
+            raise
     else:
         report = _robot(
             domain,
@@ -305,6 +314,7 @@ def main(
             watchdog=watchdog or None,
             resume=not fresh,
             serve_goals=serve_goals,
+            web=page,
         )
     print_report(report)
     if json_out is not None:
@@ -400,17 +410,38 @@ def _robot(
                 journal=True,
                 resume=opts["resume"],
                 serve_goals=opts["serve_goals"],
+                web=opts["web"],
             )
         )
     except BaseException as exc:  # trio hands some errors over in exception groups
-        leaf = exc
-        while isinstance(leaf, BaseExceptionGroup) and len(leaf.exceptions) == 1:
-            leaf = leaf.exceptions[0]
-        if isinstance(leaf, ListenError):
-            raise click.ClickException(str(leaf)) from None
-        if isinstance(leaf, KeyboardInterrupt):
-            raise click.Abort() from None
+        _listen_error(exc)
         raise
+
+
+def _listen_error(exc: BaseException) -> None:
+    """A socket that cannot listen, or Ctrl-C, out of trio's exception groups: as
+    click's errors (anything else: nothing, the caller raises it)."""
+    leaf = exc
+    while isinstance(leaf, BaseExceptionGroup) and len(leaf.exceptions) == 1:
+        leaf = leaf.exceptions[0]
+    if isinstance(leaf, ListenError):
+        raise click.ClickException(str(leaf)) from None
+    if isinstance(leaf, KeyboardInterrupt):
+        raise click.Abort() from None
+
+
+def _page(options: WebOptions | None) -> Any:
+    """The web page's task for `dispatch_session` (None: no --web); it says where
+    it listens."""
+    if options is None:
+        return None
+    from .web import web_task
+
+    def listening(port: int) -> None:
+        click.echo(f"web view on {web_url(options, port)}")
+        sys.stdout.flush()
+
+    return web_task(options, listening)
 
 
 def _print_plan(db: Path, session: int | None) -> None:

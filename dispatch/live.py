@@ -91,6 +91,7 @@ class DispatchLive:
         self._notes: deque[dict[str, Any]] = deque(maxlen=KEPT)
         self._sensing_seen: dict[str, Any] | None = None
         self._seen_replans = dispatcher.stats.replans
+        self._notes_made = 0
         self._goal = self._goal_now()
         self._stops = [
             self.kb.subscribe(self._on_facts),
@@ -136,7 +137,8 @@ class DispatchLive:
 
     def _note(self, kind: str, text: str, **data: Any) -> dict[str, Any]:
         """Under the lock: a note (a failure, a replan, a contradiction) kept and told."""
-        note = {"kind": kind, "text": text, "time": self._now(), **data}
+        self._notes_made += 1
+        note = {"id": self._notes_made, "kind": kind, "text": text, "time": self._now(), **data}
         self._notes.append(note)
         return self._event("note", note=note)
 
@@ -252,7 +254,7 @@ class DispatchLive:
                     text = f"turn {turn['turn']}: replanned after an action that did not succeed"
                     events.append(self._note("replan", text, turn=turn["turn"]))
                 self._seen_replans = stats.replans
-                events.append(self._event("turn", turn=turn, stats=self._stats()))
+                events.append(self._event("turn", turn=turn, stats=self._stats(), session=dict(s)))
         self._emit(events)
 
     def _on_action(self, kind: str, data: dict[str, Any]) -> None:
@@ -281,6 +283,11 @@ class DispatchLive:
             self._sensing_seen = counts
             events = [self._event("sensing", sensing=counts)]
         self._emit(events)
+
+    def running(self) -> list[dict[str, Any]]:
+        """The actions running now (as the snapshot lists them)."""
+        with self._lock:
+            return [dict(a) for a in self._running.values()]
 
     def _sensing(self) -> dict[str, Any] | None:
         sensing = self.d.sensing

@@ -355,6 +355,7 @@ async def dispatch_session(
     resume: bool = True,
     serve_goals: bool = False,
     stop: trio.Event | None = None,
+    web: Callable[..., Awaitable[Any]] | None = None,
 ) -> RunReport:
     """Serve `dispatcher`, start the planner once it listens (none: wait
     for one to connect), play until a session ends (with `link.reconnect`,
@@ -378,7 +379,9 @@ async def dispatch_session(
     serves it (the planner is started again for each); each goal's outcome
     is in the report's `goals`. A goal the session's rounds did not reach
     is recorded and served again while it does not hold. Setting `stop`
-    ends the run as a signal does (`interrupted` is then "stop")."""
+    ends the run as a signal does (`interrupted` is then "stop"). `web`
+    (`ippc.dispatch.web.web_task`) is started in the run's nursery with the
+    dispatcher before the planner's socket listens: the web page."""
     started = time.perf_counter()
     link = link or LinkPolicy()
     config = dataclasses.replace(
@@ -441,6 +444,8 @@ async def dispatch_session(
                     ) from None
                 if on_kb_listening is not None:
                     on_kb_listening(bound)
+            if web is not None:
+                await nursery.start(web, dispatcher)
             try:
                 port = await nursery.start(_sessions, dispatcher, config, svc, link, run)
             except OSError as err:
@@ -991,6 +996,7 @@ async def simulate_async(
     planner_timeout: float | None = None,
     timeout: float = 0.0,
     handle_signals: bool = False,
+    web: Callable[..., Awaitable[Any]] | None = None,
     **world: Any,
 ) -> RunReport:
     """`simulate`, inside a trio run. `timeout` is the session budget in
@@ -1009,6 +1015,7 @@ async def simulate_async(
         planner_timeout=planner_timeout,
         planner_in_loop=True,
         handle_signals=handle_signals,
+        web=web,
     )
     report.reward = the_world.reward
     report.seed = seed
@@ -1019,7 +1026,7 @@ def simulate(domain: str | Path, instance: str | Path, **options: Any) -> RunRep
     """One whole simulated run (world, sensing, knowledge base, dispatcher,
     planner, handlers): the report of the session. `options` are those of
     `simulate_async`: `seed`, `planner` (a `PlannerSpec`), `rounds`, `db`,
-    `transcripts`, `planner_timeout`, `timeout`, and the world's `durations`, `costs`,
+    `transcripts`, `planner_timeout`, `timeout`, `web`, and the world's `durations`, `costs`,
     `failures`, `sensed`, `exogenous`, `observe`, `action_timeout`,
     `stop_at_goal` (see `SimulatedWorld`)."""
     return trio.run(functools.partial(simulate_async, domain, instance, **options))

@@ -1,0 +1,237 @@
+"""rddl-dispatch's web page over real sockets on 127.0.0.1: the page and its event stream
+while a robot plays (actions, facts, notes, the session), hostile text escaped, the
+CLI's --web, and a headless Chromium that watches the turns advance."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import pytest
+import trio
+from click.testing import CliRunner
+from ippc.dispatch.actions import Dispatch, Result, Status
+from ippc.dispatch.cli import main
+from ippc.dispatch.run import PlannerSpec, build_robot, dispatch_session, server_config
+from ippc.dispatch.web import web_task
+from ippc.kb import KnowledgeBase, Update
+from ippc.web import WebOptions
+
+from ..web.httpclient import events, fetch
+from .conftest import DOMAIN, ONE
+
+HOSTILE = "<img src=x onerror=alert(1)>"
+ESCAPED = "&lt;img src=x onerror=alert(1)&gt;"
+
+
+def rows_of(event: dict[str, Any], table: str) -> dict[str, dict[str, Any]]:
+    return {r["key"]: r.get("cells", {}) for r in event.get("rows", []) if r["table"] == table}
+
+
+@pytest.mark.trio
+async def test_the_page_follows_a_robot_and_escapes_what_it_shows() -> None:
+    kb = KnowledgeBase.from_files(DOMAIN, ONE)
+    robot, dispatcher = build_robot(kb, None, action_timeout=10)
+    failed_once: list[bool] = []
+    go = trio.Event()
+
+    async def act(d: Dispatch) -> Result:
+        await go.wait()  # the first action waits until the viewer watches
+        await trio.sleep(0.05)
+        if d.action.name == "pickup" and not failed_once:
+            failed_once.append(True)
+            return Result(Status.FAILED, f"gripper says {HOSTILE}")
+        return Result(Status.SUCCEEDED)
+
+    async def wait(d: Dispatch) -> bool:
+        # the sender turns up while the robot waits at the desk (a sensor would say so)
+        kb.apply([Update("set", "present", ("office",), True)], f"desk {HOSTILE}")
+        await trio.sleep(0.05)
+        return True
+
+    robot.handlers.register("*", act)
+    robot.handlers.register("noop", wait)
+    ports: list[int] = []
+    seen: list[dict[str, Any]] = []
+    stop = trio.Event()
+    async with trio.open_nursery() as nursery:
+
+        async def run() -> None:
+            # serving goals: after the goal, the run (and its page) waits for the next
+            report = await dispatch_session(
+                dispatcher,
+                PlannerSpec("exact"),
+                server_config(rounds=2),
+                robot=robot,
+                serve_goals=True,
+                stop=stop,
+                web=web_task(WebOptions(port=0), ports.append, tick=0.1),
+            )
+            assert report.goals[0]["reached"] and report.interrupted == "stop"
+
+        nursery.start_soon(run)
+        with trio.fail_after(30):
+            while not ports:
+                await trio.sleep(0.01)
+        port = ports[0]
+        async with events(port, "/events") as stream:
+            first = await stream.next()
+            assert first["type"] == "rows" and first["reset"]
+            assert rows_of(first, "facts")["robot-at(r1,hall)"]["value"] == "true"
+            go.set()
+            with trio.fail_after(60):
+                while True:
+                    event = await stream.next(timeout=60)
+                    seen.append(event)
+                    if "goal" in event.get("fields", {}) and event["fields"]["goal"].endswith(
+                        ": holds"
+                    ):
+                        break
+        page = await fetch(port, "/")
+        raw = await fetch(port, "/snapshot.json")
+        svg = await fetch(port, "/figure/rewards.svg")
+        missing = await fetch(port, "/nothing")
+        stop.set()
+    # the actions: running, then how they ended, with the handler's message as text
+    actions = [c for e in seen for c in rows_of(e, "actions").values()]
+    assert {"action": "move(r1,hall,office)", "state": "running"}.items() <= actions[0].items()
+    assert any(c.get("state") == "failed" and HOSTILE in c["message"] for c in actions)
+    notes = [c for e in seen for c in rows_of(e, "notes").values()]
+    assert [n["kind"] for n in notes] == ["failure", "replan"]
+    assert HOSTILE in notes[0]["text"]
+    # facts changed, marked, by whom
+    facts = [(k, c) for e in seen for k, c in rows_of(e, "facts").items()]
+    assert ("robot-at(r1,office)", "true", "changed", "dispatcher") in [
+        (k, c["value"], c["mark"], c["source"]) for k, c in facts
+    ]
+    assert any(c["source"] == f"desk {HOSTILE}" for _, c in facts)
+    assert any(c["mark"] == "" for _, c in facts)  # a mark cleared when it got old
+    sessions = [e["fields"]["session"] for e in seen if "session" in e.get("fields", {})]
+    assert any(s.startswith("session 1: round 1, turn ") for s in sessions)
+    turns = [e["fields"]["turns"] for e in seen if "turns" in e.get("fields", {})]
+    assert turns == sorted(turns) and turns[-1] >= 5
+    # every response escapes what it shows
+    assert page.status == 200 and HOSTILE not in page.text and ESCAPED in page.text
+    assert "robot-at(r1,lab)" in page.text
+    assert raw.status == 200 and b"<" not in raw.body and b">" not in raw.body
+    snap = raw.json()
+    assert snap["stats"]["failed_actions"] == 1 and snap["goal"]["holds"] is True
+    assert any(f["source"] == f"desk {HOSTILE}" for f in snap["facts"])
+    assert svg.status == 200 and svg.headers["content-type"] == "image/svg+xml"
+    assert svg.text.startswith("<svg") and HOSTILE not in svg.text
+    assert missing.status == 404 and HOSTILE not in missing.text
+
+
+def test_the_cli_simulates_with_a_page() -> None:
+    result = CliRunner().invoke(
+        main, [str(DOMAIN), str(ONE), "--simulate", "--planner", "exact", "--web", "0", "-q"]
+    )
+    assert result.exit_code == 0, result.output
+    assert result.output.startswith("web view on http://127.0.0.1:")
+    assert "goal reached" in result.output
+
+
+def test_a_taken_port_is_one_line() -> None:
+    import socket
+
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        result = CliRunner().invoke(
+            main, [str(DOMAIN), str(ONE), "--simulate", "--web", str(port), "-q"]
+        )
+    assert result.exit_code == 1
+    assert f"cannot listen on 127.0.0.1:{port} (the web page's socket, --web)" in result.output
+    result = CliRunner().invoke(main, [str(DOMAIN), str(ONE), "--simulate", "--web-host", "::1"])
+    assert result.exit_code == 2 and "needs --web PORT" in result.output
+
+
+ROBOT = """
+import trio
+
+def setup(robot):
+    @robot.handler("*")
+    async def act(d):
+        await trio.sleep(0.4)
+        return True
+
+    @robot.handler("noop")
+    async def wait(d):
+        await trio.sleep(0.4)
+        return True
+"""
+
+
+def _chromium() -> tuple[str, str]:
+    chromium = shutil.which("chromium") or "/usr/bin/chromium"
+    driver = shutil.which("chromedriver") or "/usr/bin/chromedriver"
+    if not (os.path.exists(chromium) and os.path.exists(driver)):
+        pytest.skip("needs Debian's chromium and chromium-driver (apt install chromium-driver)")
+    try:
+        import selenium  # noqa: F401
+    except ImportError:
+        pytest.skip("needs selenium (pip install -e '.[test]')")
+    return chromium, driver
+
+
+@pytest.mark.alone  # a browser and a robot on the wall clock
+def test_chromium_sees_the_turns_advance(tmp_path: Path) -> None:
+    chromium, driver = _chromium()
+    from selenium import webdriver
+    from selenium.webdriver.chrome.options import Options
+    from selenium.webdriver.chrome.service import Service
+    from selenium.webdriver.common.by import By
+
+    robot = tmp_path / "robot.py"
+    robot.write_text(ROBOT)
+    cmd = [sys.executable, "-m", "ippc.dispatch.cli", str(DOMAIN), str(ONE), "--robot", str(robot)]
+    cmd += ["--planner", "exact", "--port", "0", "--web", "0", "--rounds", "3", "-q"]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    browser = None
+    try:
+        assert proc.stdout is not None
+        line = proc.stdout.readline()
+        assert line.startswith("web view on http://127.0.0.1:"), (line, proc.stderr)
+        url = line.split(" on ", 1)[1].strip()
+        options = Options()
+        for arg in ("--headless=new", "--no-sandbox", "--disable-dev-shm-usage"):
+            options.add_argument(arg)
+        options.binary_location = chromium
+        browser = webdriver.Chrome(service=Service(driver), options=options)
+        browser.set_page_load_timeout(30)
+        browser.get(url)
+        turns = browser.find_element(By.CSS_SELECTOR, '[data-page-field="turns"]')
+
+        def count() -> int:
+            text = turns.text.strip()
+            return int(text) if text.isdigit() else -1
+
+        deadline = time.monotonic() + 60
+        first = count()
+        while count() <= first:
+            assert time.monotonic() < deadline, "the turn count did not advance in 60 s"
+            assert proc.poll() is None, proc.communicate()
+            time.sleep(0.1)
+        later = count()
+        assert later > first >= 0
+        # live.js applied the events (no reload): the actions table grew too
+        rows = browser.find_elements(By.CSS_SELECTOR, 'tbody[data-table="actions"] tr')
+        assert rows and int(browser.execute_script("return document.body.dataset.eventsSeen")) > 0
+        assert browser.find_element(By.ID, "conn").text == "live"
+    finally:
+        if browser is not None:
+            browser.quit()
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGTERM)
+            try:
+                proc.wait(20)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait(5)
