@@ -127,35 +127,26 @@ def _counts_text(counts: Mapping[str, int]) -> str:
     return f"{counts.get('total', 0)} jobs: " + (", ".join(parts) or "none yet")
 
 
-def _score_rows(scores: Mapping[str, Any]) -> list[tuple[str, str, dict[str, Any]]]:
+def _score_rows(
+    scores: Mapping[str, Any], planners: Sequence[str]
+) -> list[tuple[str, str, dict[str, Any]]]:
+    """The rows of the overall table (one per planner, with its rank) and of the
+    per-domain table (one per domain, a planner's score and its 95% interval per
+    column, as the report's table)."""
     rows: list[tuple[str, str, dict[str, Any]]] = []
-    for p in scores.get("planners", []):
-        rows.append(
-            (
-                "overall",
-                p["planner"],
-                {
-                    "planner": p["planner"],
-                    "score": p["score"],
-                    "ci95": p["ci95"],
-                    "instances": p["instances"],
-                },
-            )
-        )
+    for rank, p in enumerate(scores.get("planners", []), 1):
+        cells = {k: p[k] for k in ("planner", "score", "ci95", "instances")}
+        rows.append(("overall", p["planner"], {"rank": rank, **cells}))
+    domains: dict[str, dict[str, Any]] = {}
     for d in scores.get("domains", []):
-        rows.append(
-            (
-                "domains",
-                f"{d['domain']}\x1f{d['planner']}",
-                {
-                    "domain": d["domain"],
-                    "planner": d["planner"],
-                    "score": d["score"],
-                    "ci95": d["ci95"],
-                    "instances": d["instances"],
-                },
-            )
-        )
+        if d["planner"] not in planners:
+            continue
+        text = fmt_number(d["score"], 3)
+        if d["ci95"] is not None:
+            text += f" \u00b1 {fmt_number(d['ci95'], 2)}"
+        cells = domains.setdefault(d["domain"], {"domain": d["domain"]})
+        cells[_grid_key(d["planner"], planners)] = text
+    rows += [("domains", name, cells) for name, cells in domains.items()]
     return rows
 
 
@@ -199,7 +190,7 @@ def _rows(snap: Mapping[str, Any]) -> dict[str, list[tuple[str, Mapping[str, Any
         "overall": [],
         "domains": [],
     }
-    for table, key, cells in _score_rows(snap["scores"]):
+    for table, key, cells in _score_rows(snap["scores"], planners):
         tables[table].append((key, cells))
     return tables
 
@@ -248,7 +239,7 @@ class _Translator:
         if kind == "scores":
             scores = event["scores"]
             return [
-                rows_event(_score_rows(scores)),
+                rows_event(_score_rows(scores, self.live.planners())),
                 fields_event({"scores-note": _score_note(scores), "figures": event["seq"]}),
             ]
         if kind == "batch":
@@ -309,14 +300,14 @@ def bar_chart(
     for i, name in enumerate(names):
         x0 = left + slot * i + slot * 0.1
         for k, s in enumerate(series):
-            v = groups[name].get(s)
-            if v is None or not math.isfinite(v):
+            value = groups[name].get(s)
+            if value is None or not math.isfinite(value):
                 continue
-            y0, y1 = sorted((y(v), y(max(lo, 0.0))))
+            y0, y1 = sorted((y(value), y(max(lo, 0.0))))
             parts.append(
                 f'<rect x="{round(x0 + bar * k, 1)}" y="{y0}" width="{round(bar, 1)}"'
                 f' height="{round(max(y1 - y0, 0.5), 1)}" fill="{PALETTE[k % len(PALETTE)]}">'
-                f"<title>{esc(name)}: {esc(s)} {esc(fmt_number(v))}</title></rect>"
+                f"<title>{esc(name)}: {esc(s)} {esc(fmt_number(value))}</title></rect>"
             )
         cx = round(left + slot * (i + 0.5), 1)
         cy = top + plot_h + 8
@@ -431,6 +422,7 @@ def _index(live: BatchLive) -> str:
         live_table(
             "overall",
             [
+                ("rank", "#"),
                 ("planner", "planner"),
                 ("score", "score"),
                 ("ci95", "95% CI"),
@@ -442,13 +434,7 @@ def _index(live: BatchLive) -> str:
         h("h3", "Per domain"),
         live_table(
             "domains",
-            [
-                ("domain", "domain"),
-                ("planner", "planner"),
-                ("score", "score"),
-                ("ci95", "95% CI"),
-                ("instances", "instances"),
-            ],
+            [("domain", "domain")] + [(_grid_key(p, planners), p) for p in planners],
             rows["domains"],
             state_field=None,
         ),

@@ -24,7 +24,7 @@ from __future__ import annotations
 import logging
 import threading
 import time
-from collections.abc import Awaitable, Callable, Mapping
+from collections.abc import Awaitable, Callable, Mapping, Sequence
 from typing import Any
 
 import trio
@@ -177,7 +177,7 @@ def _fields(snap: Mapping[str, Any]) -> dict[str, Any]:
     }
 
 
-def _rows(snap: Mapping[str, Any]) -> dict[str, list[tuple[str, Mapping[str, Any]]]]:
+def _rows(snap: Mapping[str, Any]) -> dict[str, Sequence[tuple[str, Mapping[str, Any]]]]:
     now = snap["time"]
     actions = list(snap["ended"])[-ACTIONS_SHOWN:] + list(snap["running"])
     actions.sort(key=lambda a: a["id"])
