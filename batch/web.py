@@ -13,8 +13,9 @@ Dask cluster's). So the page runs in a thread of its own with its own trio loop
 (`BatchWeb`): the run loop's observer hands each event to that loop with
 ``TrioToken.run_sync_soon`` (trio's thread-safe queue into a loop: it never waits, so a
 viewer can never slow the batch), and the page's handlers read `BatchLive.snapshot()`
-(under its lock). The web core (`ippc.web`) then fans the events out to the viewers,
-dropping one that falls behind.
+(under its lock). The changes are gathered and sent four times a second (the last value
+of each row and field), and nothing is built for them while nobody watches; the web core
+(`ippc.web`) fans them out to the viewers, dropping one that falls behind.
 
 Routes: ``/`` (the page), ``/events`` (its server-sent events), ``/snapshot.json``
 (the whole picture as JSON), ``/figure/scores.svg``, ``/figure/times.svg`` and
@@ -474,16 +475,48 @@ def batch_routes(live: BatchLive, feed: Feed) -> Routes:
     return routes
 
 
+class PageUpdates:
+    """Changes to a page (rows of its tables, its fields) gathered between flushes:
+    the last cells of each row and the last value of each field win, so a viewer gets
+    at most two events a flush however many turns were played meanwhile."""
+
+    def __init__(self) -> None:
+        self.rows: dict[tuple[str, str], dict[str, Any]] = {}
+        self.fields: dict[str, Any] = {}
+
+    def add(self, event: Mapping[str, Any]) -> None:
+        if event["type"] == "rows":
+            for row in event["rows"]:
+                self.rows.setdefault((row["table"], row["key"]), {}).update(row.get("cells", {}))
+        elif event["type"] == "fields":
+            self.fields.update(event["fields"])
+
+    def take(self) -> list[dict[str, Any]]:
+        """The events of what was gathered (none: nothing changed); empties it."""
+        out = []
+        if self.rows:
+            out.append(rows_event([(t, k, c) for (t, k), c in self.rows.items()]))
+        if self.fields:
+            out.append(fields_event(self.fields))
+        self.rows, self.fields = {}, {}
+        return out
+
+
 class BatchWeb:
     """The page, served by a thread with its own trio loop (see the module doc):
     `start()` returns the port once it listens (or raises the `OSError` of a port it
-    cannot have); `stop()` ends the viewers' streams (after the events already queued)
-    and the thread."""
+    cannot have); `stop()` ends the viewers' streams (after the changes gathered so far)
+    and the thread. The changes are sent to the viewers every `flush` seconds, gathered
+    (`PageUpdates`)."""
 
-    def __init__(self, live: BatchLive, options: WebOptions, *, grace: float = 1.0) -> None:
+    def __init__(
+        self, live: BatchLive, options: WebOptions, *, grace: float = 1.0, flush: float = 0.25
+    ) -> None:
         self.live = live
         self.options = options
         self.grace = grace
+        self.flush = flush
+        self._updates = PageUpdates()
         self.feed = Feed()
         self.port: int | None = None
         self._translate = _Translator(live)
@@ -524,11 +557,19 @@ class BatchWeb:
             pass
 
     def _send(self, event: dict[str, Any]) -> None:
-        """In the page's loop."""
+        """In the page's loop: gathered until the next flush."""
         if not self.feed.watched(TOPIC):
             return
         for out in self._translate(event):
-            self.feed.publish(out, TOPIC)
+            self._updates.add(out)
+
+    async def _flush(self) -> None:
+        while True:
+            await trio.sleep(self.flush)
+            events = self._updates.take()
+            if self.feed.watched(TOPIC):
+                for event in events:
+                    self.feed.publish(event, TOPIC)
 
     def _main(self) -> None:
         try:
@@ -549,8 +590,11 @@ class BatchWeb:
                 serve_web, batch_routes(self.live, self.feed), self.options
             )
             self._token = trio.lowlevel.current_trio_token()
+            nursery.start_soon(self._flush)
             self._ready.set()
             await self._stop.wait()
+            for event in self._updates.take():  # (the last changes, then the end)
+                self.feed.publish(event, TOPIC)
             self.feed.close()  # the viewers' streams end after what is queued
             with trio.move_on_after(self.grace):
                 while self.feed.viewers:

@@ -12,9 +12,11 @@ knowledge base's subscriptions, the dispatcher's and the handlers' watchers.
 It runs in the dispatcher's own trio loop, started by `dispatch_session` before the
 planner's socket (`web_task`): an event that comes from another thread (a robot's driver
 thread writing the knowledge base) is handed to the loop with
-``TrioToken.run_sync_soon``; the others are published at once. Publishing never waits
-(`ippc.web.Feed`), so a viewer can never slow the robot. Sensing's counts are told once a
-second.
+``TrioToken.run_sync_soon``. The changes are gathered and sent to the viewers four times
+a second (the last value of each row and field: a viewer gets at most two events a
+flush, however fast the turns go), and nothing is built for them while nobody watches.
+Publishing never waits (`ippc.web.Feed`), so a viewer can never slow the robot. Sensing's
+counts and the running actions' times are told once a second.
 
 Routes: ``/`` (the page), ``/events``, ``/snapshot.json`` and ``/figure/rewards.svg``.
 """
@@ -52,7 +54,7 @@ from .dispatcher import Dispatcher
 from .live import DispatchLive
 from .run import ListenError
 
-__all__ = ["dispatch_routes", "page_events", "web_task"]
+__all__ = ["PageUpdates", "dispatch_routes", "page_events", "web_task"]
 
 log = logging.getLogger(__name__)
 
@@ -338,6 +340,33 @@ def dispatch_routes(live: DispatchLive, feed: Feed) -> Routes:
     return routes
 
 
+class PageUpdates:
+    """Changes to a page (rows of its tables, its fields) gathered between flushes:
+    the last cells of each row and the last value of each field win, so a viewer gets
+    at most two events a flush however many turns were played meanwhile."""
+
+    def __init__(self) -> None:
+        self.rows: dict[tuple[str, str], dict[str, Any]] = {}
+        self.fields: dict[str, Any] = {}
+
+    def add(self, event: Mapping[str, Any]) -> None:
+        if event["type"] == "rows":
+            for row in event["rows"]:
+                self.rows.setdefault((row["table"], row["key"]), {}).update(row.get("cells", {}))
+        elif event["type"] == "fields":
+            self.fields.update(event["fields"])
+
+    def take(self) -> list[dict[str, Any]]:
+        """The events of what was gathered (none: nothing changed); empties it."""
+        out = []
+        if self.rows:
+            out.append(rows_event([(t, k, c) for (t, k), c in self.rows.items()]))
+        if self.fields:
+            out.append(fields_event(self.fields))
+        self.rows, self.fields = {}, {}
+        return out
+
+
 WebTask = Callable[..., Awaitable[None]]
 
 
@@ -345,11 +374,14 @@ def web_task(
     options: WebOptions,
     on_listening: Callable[[int], None] | None = None,
     *,
+    flush: float = 0.25,
     tick: float = 1.0,
 ) -> WebTask:
     """What `dispatch_session(web=...)` starts in its nursery: serve the page of the
     dispatcher it is given until cancelled (`on_listening(port)` once it listens; a
-    port it cannot have raises `ListenError`)."""
+    port it cannot have raises `ListenError`). The changes are sent to the viewers
+    every `flush` seconds, gathered (`PageUpdates`); sensing's counts and the running
+    actions' times every `tick` seconds."""
 
     async def serve(
         dispatcher: Dispatcher, *, task_status: trio.TaskStatus[int] = trio.TASK_STATUS_IGNORED
@@ -357,14 +389,15 @@ def web_task(
         live = DispatchLive(dispatcher)
         feed = Feed()
         translate = _Translator(live)
+        updates = PageUpdates()
         token = trio.lowlevel.current_trio_token()
         loop_thread = threading.get_ident()
 
         def send(event: dict[str, Any]) -> None:
             if feed.watched(TOPIC):
                 for out in translate(event):
-                    feed.publish(out, TOPIC)
-            elif event["type"] == "facts":
+                    updates.add(out)
+            elif event["type"] in ("facts", "turn-sent"):
                 translate(event)  # (the marks, for the next viewer's updates)
 
         def publish(event: dict[str, Any]) -> None:
@@ -375,6 +408,24 @@ def web_task(
                 token.run_sync_soon(send, event)
             except trio.RunFinishedError:
                 pass
+
+        async def flusher() -> None:
+            next_tick = trio.current_time() + tick
+            while True:
+                await trio.sleep(flush)
+                if trio.current_time() >= next_tick:
+                    next_tick += tick
+                    live.tick()
+                    running = live.running()
+                    if running and feed.watched(TOPIC):
+                        now = time.time()
+                        for a in running:
+                            cells = _action_cells(a, now)
+                            updates.add(rows_event([("actions", str(a["id"]), cells)]))
+                events = updates.take()
+                if feed.watched(TOPIC):
+                    for event in events:
+                        feed.publish(event, TOPIC)
 
         unsubscribe = live.subscribe(publish)
         try:
@@ -387,15 +438,8 @@ def web_task(
                     ) from None
                 if on_listening is not None:
                     on_listening(port)
+                nursery.start_soon(flusher)
                 task_status.started(port)
-                while True:
-                    await trio.sleep(tick)
-                    live.tick()
-                    running = live.running()
-                    if running and feed.watched(TOPIC):
-                        now = time.time()
-                        rows = [("actions", str(a["id"]), _action_cells(a, now)) for a in running]
-                        feed.publish(rows_event(rows), TOPIC)
         finally:
             unsubscribe()
             live.close()

@@ -149,8 +149,9 @@ async def test_a_viewer_that_does_not_read_is_dropped_and_the_batch_goes_on(
     tmp_path: Path,
 ) -> None:
     live = BatchLive()
-    page = BatchWeb(live, WebOptions(port=0))
-    page.feed.queue_size = 4  # (the feed's bound, small: the run overflows it)
+    # flushed every 5 ms (an event or two a turn) into a feed bound of 4 events
+    page = BatchWeb(live, WebOptions(port=0), flush=0.005)
+    page.feed.queue_size = 4
     port = page.start()
     try:
         # a viewer that asks for the events and never reads them, with a small receive

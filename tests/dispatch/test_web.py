@@ -43,7 +43,8 @@ async def test_the_page_follows_a_robot_and_escapes_what_it_shows() -> None:
 
     async def act(d: Dispatch) -> Result:
         await go.wait()  # the first action waits until the viewer watches
-        await trio.sleep(0.05)
+        # the first runs over a flush of the page (0.25 s): seen running, then ended
+        await trio.sleep(0.6 if d.id == 1 else 0.05)
         if d.action.name == "pickup" and not failed_once:
             failed_once.append(True)
             return Result(Status.FAILED, f"gripper says {HOSTILE}")
