@@ -33,6 +33,7 @@ from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from typing import Any
 
+from ..web.pages import Listeners
 from .jobs import Job, JobResult
 from .report import reward_curves
 from .results import DONE, BatchStore, RoundRecord
@@ -88,7 +89,7 @@ class BatchLive:
         self.rules = rules
         self.rounds = rounds  # N of the scores (None: the sessions' rounds)
         self._lock = threading.Lock()
-        self._listeners: list[EventCallback] = []
+        self._listeners = Listeners("batch live view")
         self._seq = 0
         self._store: BatchStore | None = None
         self.experiment = ""
@@ -106,25 +107,10 @@ class BatchLive:
 
     def subscribe(self, callback: EventCallback) -> Callable[[], None]:
         """Call `callback(event)` for every change; returns the function that stops it."""
-        with self._lock:
-            self._listeners.append(callback)
-
-        def unsubscribe() -> None:
-            with self._lock:
-                if callback in self._listeners:
-                    self._listeners.remove(callback)
-
-        return unsubscribe
+        return self._listeners.subscribe(callback)
 
     def _emit(self, events: list[dict[str, Any]]) -> None:
-        with self._lock:
-            listeners = list(self._listeners)
-        for event in events:
-            for cb in listeners:
-                try:
-                    cb(event)
-                except Exception:  # a viewer's bug must never stop the batch
-                    log.exception("batch live view: a listener failed on %s", event["type"])
+        self._listeners.emit(events)
 
     def _event(self, kind: str, **data: Any) -> dict[str, Any]:
         """Under the lock: the next event."""

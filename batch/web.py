@@ -42,7 +42,6 @@ from ..web import (
     Response,
     Routes,
     WebOptions,
-    encode_event,
     esc,
     field,
     fields_event,
@@ -54,8 +53,10 @@ from ..web import (
     page,
     rows_event,
     serve_web,
+    to_json,
 )
 from ..web.chart import PALETTE
+from ..web.pages import PageUpdates
 from .live import BatchLive
 
 __all__ = ["BatchWeb", "batch_routes", "bar_chart", "page_events"]
@@ -450,22 +451,12 @@ def _index(live: BatchLive) -> str:
     )
 
 
-def json_response(data: Mapping[str, Any]) -> Response:
-    """`data` as JSON: the feed's encoding (NaN and infinities as null, ASCII only) with
-    ``<``, ``>`` and ``&`` as \\u escapes, so that no name in it reads as markup even to a
-    browser that ignores the content type."""
-    text = encode_event(data)[len(b"data: ") : -2]
-    for raw, escaped in ((b"<", b"\\u003c"), (b">", b"\\u003e"), (b"&", b"\\u0026")):
-        text = text.replace(raw, escaped)
-    return Response(text, content_type=JSON)
-
-
 def batch_routes(live: BatchLive, feed: Feed) -> Routes:
     """The page's routes (see the module doc)."""
     routes = Routes()
     routes.add("/", lambda r: Response(_index(live)))
     routes.add("/events", lambda r: EventStream(feed, [TOPIC], lambda: page_events(live)))
-    routes.add("/snapshot.json", lambda r: json_response(live.snapshot()))
+    routes.add("/snapshot.json", lambda r: Response(to_json(live.snapshot()), content_type=JSON))
     routes.add("/figure/scores.svg", lambda r: Response(_scores_svg(live), content_type=SVG))
     routes.add("/figure/times.svg", lambda r: Response(_times_svg(live), content_type=SVG))
     routes.add(
@@ -473,33 +464,6 @@ def batch_routes(live: BatchLive, feed: Feed) -> Routes:
         lambda r: Response(_rewards_svg(live, r.params["instance"]), content_type=SVG),
     )
     return routes
-
-
-class PageUpdates:
-    """Changes to a page (rows of its tables, its fields) gathered between flushes:
-    the last cells of each row and the last value of each field win, so a viewer gets
-    at most two events a flush however many turns were played meanwhile."""
-
-    def __init__(self) -> None:
-        self.rows: dict[tuple[str, str], dict[str, Any]] = {}
-        self.fields: dict[str, Any] = {}
-
-    def add(self, event: Mapping[str, Any]) -> None:
-        if event["type"] == "rows":
-            for row in event["rows"]:
-                self.rows.setdefault((row["table"], row["key"]), {}).update(row.get("cells", {}))
-        elif event["type"] == "fields":
-            self.fields.update(event["fields"])
-
-    def take(self) -> list[dict[str, Any]]:
-        """The events of what was gathered (none: nothing changed); empties it."""
-        out = []
-        if self.rows:
-            out.append(rows_event([(t, k, c) for (t, k), c in self.rows.items()]))
-        if self.fields:
-            out.append(fields_event(self.fields))
-        self.rows, self.fields = {}, {}
-        return out
 
 
 class BatchWeb:

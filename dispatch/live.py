@@ -36,6 +36,7 @@ from typing import Any
 
 from ..kb import KnowledgeBase
 from ..kb.store import Change
+from ..web.pages import Listeners
 from .dispatcher import Dispatcher
 
 __all__ = ["DispatchLive", "EventCallback"]
@@ -69,7 +70,7 @@ class DispatchLive:
         self.kb: KnowledgeBase = dispatcher.kb
         self._now = clock
         self._lock = threading.Lock()
-        self._listeners: list[EventCallback] = []
+        self._listeners = Listeners("dispatch live view")
         self._seq = 0
         self.started_at = clock()
         self._sent = 0  # turns sent to the planner: the facts' change epochs
@@ -110,25 +111,10 @@ class DispatchLive:
 
     def subscribe(self, callback: EventCallback) -> Callable[[], None]:
         """Call `callback(event)` for every change; returns the function that stops it."""
-        with self._lock:
-            self._listeners.append(callback)
-
-        def unsubscribe() -> None:
-            with self._lock:
-                if callback in self._listeners:
-                    self._listeners.remove(callback)
-
-        return unsubscribe
+        return self._listeners.subscribe(callback)
 
     def _emit(self, events: list[dict[str, Any]]) -> None:
-        with self._lock:
-            listeners = list(self._listeners)
-        for event in events:
-            for cb in listeners:
-                try:
-                    cb(event)
-                except Exception:  # a viewer's bug must never stop the robot
-                    log.exception("dispatch live view: a listener failed on %s", event["type"])
+        self._listeners.emit(events)
 
     def _event(self, kind: str, **data: Any) -> dict[str, Any]:
         """Under the lock: the next event."""

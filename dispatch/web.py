@@ -39,7 +39,6 @@ from ..web import (
     Response,
     Routes,
     WebOptions,
-    encode_event,
     field,
     fields_event,
     fmt_number,
@@ -49,12 +48,14 @@ from ..web import (
     page,
     rows_event,
     serve_web,
+    to_json,
 )
+from ..web.pages import PageUpdates
 from .dispatcher import Dispatcher
 from .live import DispatchLive
 from .run import ListenError
 
-__all__ = ["PageUpdates", "dispatch_routes", "page_events", "web_task"]
+__all__ = ["dispatch_routes", "page_events", "web_task"]
 
 log = logging.getLogger(__name__)
 
@@ -321,50 +322,14 @@ def _index(live: DispatchLive) -> str:
     )
 
 
-def json_response(data: Mapping[str, Any]) -> Response:
-    """`data` as JSON: the feed's encoding (NaN and infinities as null, ASCII only) with
-    ``<``, ``>`` and ``&`` as \\u escapes (no name in it reads as markup)."""
-    text = encode_event(data)[len(b"data: ") : -2]
-    for raw, escaped in ((b"<", b"\\u003c"), (b">", b"\\u003e"), (b"&", b"\\u0026")):
-        text = text.replace(raw, escaped)
-    return Response(text, content_type=JSON)
-
-
 def dispatch_routes(live: DispatchLive, feed: Feed) -> Routes:
     """The page's routes (see the module doc)."""
     routes = Routes()
     routes.add("/", lambda r: Response(_index(live)))
     routes.add("/events", lambda r: EventStream(feed, [TOPIC], lambda: page_events(live)))
-    routes.add("/snapshot.json", lambda r: json_response(live.snapshot()))
+    routes.add("/snapshot.json", lambda r: Response(to_json(live.snapshot()), content_type=JSON))
     routes.add("/figure/rewards.svg", lambda r: Response(_rewards_svg(live), content_type=SVG))
     return routes
-
-
-class PageUpdates:
-    """Changes to a page (rows of its tables, its fields) gathered between flushes:
-    the last cells of each row and the last value of each field win, so a viewer gets
-    at most two events a flush however many turns were played meanwhile."""
-
-    def __init__(self) -> None:
-        self.rows: dict[tuple[str, str], dict[str, Any]] = {}
-        self.fields: dict[str, Any] = {}
-
-    def add(self, event: Mapping[str, Any]) -> None:
-        if event["type"] == "rows":
-            for row in event["rows"]:
-                self.rows.setdefault((row["table"], row["key"]), {}).update(row.get("cells", {}))
-        elif event["type"] == "fields":
-            self.fields.update(event["fields"])
-
-    def take(self) -> list[dict[str, Any]]:
-        """The events of what was gathered (none: nothing changed); empties it."""
-        out = []
-        if self.rows:
-            out.append(rows_event([(t, k, c) for (t, k), c in self.rows.items()]))
-        if self.fields:
-            out.append(fields_event(self.fields))
-        self.rows, self.fields = {}, {}
-        return out
 
 
 WebTask = Callable[..., Awaitable[None]]
