@@ -6,6 +6,7 @@ import re
 
 import click
 import pytest
+from ippc.batch.cli import main as batch_main
 from ippc.client.cli import main as client_main
 from ippc.dispatch.cli import main as dispatch_main
 from ippc.kb.cli import main as kb_main
@@ -21,6 +22,7 @@ COMMANDS: dict[str, click.Command] = {
     "rddl-client": client_main,
     "rddl-dispatch": dispatch_main,
     "rddl-kb": kb_main,
+    "rddl-batch run": batch_main.commands["run"],
     **{f"rddl {name}": cmd for name, cmd in rddl_main.commands.items()},
 }
 
