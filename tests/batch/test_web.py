@@ -22,6 +22,7 @@ from ippc.batch.live import BatchLive
 from ippc.batch.web import BatchWeb
 from ippc.web import WebOptions
 
+from ..chromium import console_errors, headless_chromium
 from ..conftest import RDDLSIM_RDDL, REPO
 from ..web.httpclient import events, fetch
 
@@ -256,34 +257,17 @@ def test_web_options_are_checked() -> None:
 
 @pytest.mark.alone  # a browser and worker processes
 def test_chromium_sees_jobs_end_and_the_hostile_name_as_text(tmp_path: Path) -> None:
-    import shutil
+    browser = headless_chromium()
+    from selenium.webdriver.common.by import By
 
-    chromium = shutil.which("chromium") or "/usr/bin/chromium"
-    driver = shutil.which("chromedriver") or "/usr/bin/chromedriver"
-    if not (os.path.exists(chromium) and os.path.exists(driver)):
-        pytest.skip("needs Debian's chromium and chromium-driver (apt install chromium-driver)")
-    try:
-        from selenium import webdriver
-        from selenium.webdriver.chrome.options import Options
-        from selenium.webdriver.chrome.service import Service
-        from selenium.webdriver.common.by import By
-    except ImportError:
-        pytest.skip("needs selenium (pip install -e '.[test]')")
     path = experiment_file(tmp_path)
     cmd = [sys.executable, "-m", "ippc.batch.cli", "run", str(path), "--db"]
     cmd += [str(tmp_path / "db.sqlite"), "--jobs", "1", "--web", "0"]
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    browser = None
     try:
         assert proc.stderr is not None
         line = proc.stderr.readline()
         assert line.startswith("web view on http://127.0.0.1:"), line
-        options = Options()
-        for arg in ("--headless=new", "--no-sandbox", "--disable-dev-shm-usage"):
-            options.add_argument(arg)
-        options.binary_location = chromium
-        browser = webdriver.Chrome(service=Service(driver), options=options)
-        browser.set_page_load_timeout(30)
         browser.get(line.split(" on ", 1)[1].strip())
         counts = browser.find_element(By.CSS_SELECTOR, '[data-page-field="counts"]')
         first = counts.text
@@ -297,9 +281,10 @@ def test_chromium_sees_jobs_end_and_the_hostile_name_as_text(tmp_path: Path) -> 
         name = browser.find_element(By.CSS_SELECTOR, '[data-page-field="experiment"]').text
         assert name == f"web {HOSTILE}"
         assert browser.find_elements(By.CSS_SELECTOR, 'img[src="x"]') == []
+        # nothing broke the page's Content-Security-Policy, no script error, no failed load
+        assert console_errors(browser) == []
     finally:
-        if browser is not None:
-            browser.quit()
+        browser.quit()
         if proc.poll() is None:
             proc.send_signal(signal.SIGINT)
             try:

@@ -4,8 +4,6 @@ CLI's --web, and a headless Chromium that watches the turns advance."""
 
 from __future__ import annotations
 
-import os
-import shutil
 import signal
 import subprocess
 import sys
@@ -23,6 +21,7 @@ from ippc.dispatch.web import web_task
 from ippc.kb import KnowledgeBase, Update
 from ippc.web import WebOptions
 
+from ..chromium import console_errors, headless_chromium
 from ..web.httpclient import events, fetch
 from .conftest import DOMAIN, ONE
 
@@ -174,24 +173,9 @@ def setup(robot):
 """
 
 
-def _chromium() -> tuple[str, str]:
-    chromium = shutil.which("chromium") or "/usr/bin/chromium"
-    driver = shutil.which("chromedriver") or "/usr/bin/chromedriver"
-    if not (os.path.exists(chromium) and os.path.exists(driver)):
-        pytest.skip("needs Debian's chromium and chromium-driver (apt install chromium-driver)")
-    try:
-        import selenium  # noqa: F401
-    except ImportError:
-        pytest.skip("needs selenium (pip install -e '.[test]')")
-    return chromium, driver
-
-
 @pytest.mark.alone  # a browser and a robot on the wall clock
 def test_chromium_sees_the_turns_advance(tmp_path: Path) -> None:
-    chromium, driver = _chromium()
-    from selenium import webdriver
-    from selenium.webdriver.chrome.options import Options
-    from selenium.webdriver.chrome.service import Service
+    browser = headless_chromium()
     from selenium.webdriver.common.by import By
 
     robot = tmp_path / "robot.py"
@@ -199,18 +183,11 @@ def test_chromium_sees_the_turns_advance(tmp_path: Path) -> None:
     cmd = [sys.executable, "-m", "ippc.dispatch.cli", str(DOMAIN), str(ONE), "--robot", str(robot)]
     cmd += ["--planner", "exact", "--port", "0", "--web", "0", "--rounds", "3", "-q"]
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    browser = None
     try:
         assert proc.stdout is not None
         line = proc.stdout.readline()
         assert line.startswith("web view on http://127.0.0.1:"), (line, proc.stderr)
         url = line.split(" on ", 1)[1].strip()
-        options = Options()
-        for arg in ("--headless=new", "--no-sandbox", "--disable-dev-shm-usage"):
-            options.add_argument(arg)
-        options.binary_location = chromium
-        browser = webdriver.Chrome(service=Service(driver), options=options)
-        browser.set_page_load_timeout(30)
         browser.get(url)
         turns = browser.find_element(By.CSS_SELECTOR, '[data-page-field="turns"]')
 
@@ -230,9 +207,10 @@ def test_chromium_sees_the_turns_advance(tmp_path: Path) -> None:
         rows = browser.find_elements(By.CSS_SELECTOR, 'tbody[data-table="actions"] tr')
         assert rows and int(browser.execute_script("return document.body.dataset.eventsSeen")) > 0
         assert browser.find_element(By.ID, "conn").text == "live"
+        # nothing broke the page's Content-Security-Policy, no script error, no failed load
+        assert console_errors(browser) == []
     finally:
-        if browser is not None:
-            browser.quit()
+        browser.quit()
         if proc.poll() is None:
             proc.send_signal(signal.SIGTERM)
             try:
