@@ -180,7 +180,12 @@ async def test_pages_and_streams_during_and_after_a_session() -> None:
                     lambda e: e["type"] == "rows" and any(x["table"] == "rounds" for x in e["rows"])
                 )
                 assert rounds
+                # the name went by in the stream's events, never as markup
+                assert b"\\u003cimg src=x onerror=alert(1)\\u003e" in detail.raw
+                assert_escaped(bytes(detail.raw))
             await overview.until(lambda e: e["type"] == "fields" and e["fields"]["finished"] == 1)
+            assert b"\\u003cimg src=x" in overview.raw
+            assert_escaped(bytes(overview.raw))
 
         # every response after the session: escaped, the whole picture
         for path in (

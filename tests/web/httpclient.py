@@ -80,6 +80,7 @@ class EventReader:
         self.stream = stream
         self.reply = reply
         self._buf = b""
+        self.raw = bytearray()  # every byte of the stream's body so far
 
     async def next(self, timeout: float = 10.0) -> dict[str, Any]:
         """The next `data:` event (comments and `retry:` skipped)."""
@@ -95,6 +96,7 @@ class EventReader:
                     self.conn.receive_data(await self.stream.receive_some(65536))
                 elif isinstance(event, h11.Data):
                     self._buf += bytes(event.data)
+                    self.raw += event.data
                 elif isinstance(event, h11.EndOfMessage | h11.ConnectionClosed):
                     raise EOFError("the event stream ended")
 
