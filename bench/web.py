@@ -4,8 +4,10 @@ Workload: bench/server.py's (SysAdmin instance 1 of IPPC 2011 from the
 rddlrepository package, horizon 40, `--rounds` rounds, its minimal noop
 client `NoopClients`). The server runs as users start it, as one process
 (`--workers 1`: the sessions and the web view share one trio loop, the case
-where a viewer could cost a session most), and is measured three ways, all
-taking turns within each pass:
+where a viewer could cost a session most; `--workers auto` measures the
+default, where the sessions are played in worker processes and the view is
+in the main one), and is measured three ways, all taking turns within each
+pass:
 
 - `no web`: without `--web` (the reference for the view's own cost);
 - `web, 0 viewers`: `--web 0`, nobody watching;
@@ -20,6 +22,7 @@ viewers` over `no web` (what the view costs).
 
     python bench/web.py                     # 1 client, 100 viewers, 3 passes
     python bench/web.py --clients 10 --viewers 200
+    python bench/web.py --workers auto
     python bench/web.py --screenshot docs/  # the docs' screenshots (headless chromium)
 """
 
@@ -52,11 +55,11 @@ SERVER = [sys.executable, "-c", "from ippc.server.cli import main; main()"]
 
 
 def start(
-    rddl: Path, rounds: int, web: bool, extra: tuple[str, ...] = ()
+    rddl: Path, rounds: int, web: bool, extra: tuple[str, ...] = (), workers: str = "1"
 ) -> tuple[subprocess.Popen[str], int, int]:
-    """rddl-server (one process): its process, port and web port (0 without --web)."""
+    """rddl-server: its process, port and web port (0 without --web)."""
     cmd = [*SERVER, str(rddl), "--port", "0", "--rounds", str(rounds), "--timeout", "0"]
-    cmd += ["--workers", "1", "-q", *extra]
+    cmd += ["--workers", workers, "-q", *extra]
     if web:
         cmd += ["--web", "0"]
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
@@ -126,10 +129,13 @@ def start_viewers(web_port: int, n: int) -> subprocess.Popen[str]:
 # ------------------------------------------------------------------ the bench
 
 
-def measure(rddl: Path, rounds: int, clients: int, web: bool, viewers: int) -> tuple[float, float]:
+def measure(
+    rddl: Path, rounds: int, clients: int, web: bool, viewers: int, workers: str
+) -> tuple[float, float]:
     """Turns per second of `clients` noop sessions at once, and the server's
-    CPU time per turn (microseconds; less disturbed by a loaded machine)."""
-    server, port, web_port = start(rddl, rounds, web)
+    CPU time per turn (its processes; microseconds; less disturbed by a
+    loaded machine)."""
+    server, port, web_port = start(rddl, rounds, web, workers=workers)
     watchers = None
     try:
         if viewers:
@@ -144,6 +150,50 @@ def measure(rddl: Path, rounds: int, clients: int, web: bool, viewers: int) -> t
     finally:
         stop(watchers)
         stop(server)
+
+
+def step_cost(n: int = 200_000) -> tuple[float, float]:
+    """Microseconds a session's step spends on the view's notes: the
+    result store's `record_step` through `LiveStore` (no database), against
+    the same call to a store that does nothing, in this process."""
+    from ippc.server.web import SessionBoard
+
+    class Nothing:
+        def record_step(self, round_: int, **kw: object) -> None:
+            pass
+
+    board = SessionBoard()
+    live = board.wrap(None)
+    sid = live.start_session(
+        server_session_id=1,
+        instance="i",
+        client_name="c",
+        seed=0,
+        num_rounds=30,
+        time_allowed_ms=1e6,
+        peer="p",
+        started_at=time.time(),
+    )
+    rid = live.start_round(sid, round_num=1, counted=True, started_at=time.time())
+    state = [("running", (f"c{i}",), True) for i in range(10)]
+    actions = [("reboot", ("c1",), True)]
+    out = []
+    for store, key in ((Nothing(), 1), (live, rid)):
+        t0 = time.perf_counter()
+        for k in range(n):
+            store.record_step(
+                key,
+                turn_num=k,
+                state=state,
+                actions=actions,
+                reward=1.0,
+                turn_sent_at=0.0,
+                actions_received_at=0.0,
+                outcome=None,
+                execution_seconds=None,
+            )
+        out.append((time.perf_counter() - t0) / n * 1e6)
+    return out[0], out[1]
 
 
 def load() -> str:
@@ -165,12 +215,12 @@ def bench(args: argparse.Namespace) -> None:
         runs: dict[str, list[float]] = {name: [] for name in lines}
         cpus: dict[str, list[float]] = {name: [] for name in lines}
         print(
-            f"rddl-server --workers 1, {args.clients} noop client(s), {args.rounds} rounds of 40"
+            f"rddl-server --workers {args.workers}, {args.clients} noop client(s), {args.rounds} rounds of 40"
             f" turns each; {args.repeat} passes; load before: {load()}"
         )
         for k in range(args.repeat):
             for name, (web, viewers) in lines.items():
-                rate, cpu = measure(rddl, args.rounds, args.clients, web, viewers)
+                rate, cpu = measure(rddl, args.rounds, args.clients, web, viewers, args.workers)
                 runs[name].append(rate)
                 cpus[name].append(cpu)
                 print(
@@ -192,6 +242,11 @@ def bench(args: argparse.Namespace) -> None:
         print(
             f"turns/s, web, 0 viewers / no web: {med['web, 0 viewers'] / med['no web']:.3f}"
             f"   (cpu/turn: {mcpu['web, 0 viewers'] / mcpu['no web']:.3f})"
+        )
+        nothing, live = step_cost()
+        print(
+            f"a step's notes for the view (LiveStore.record_step, no database): {live:.2f} us"
+            f" (a call that does nothing: {nothing:.2f} us)"
         )
         print(f"load after: {load()}")
 
@@ -322,6 +377,11 @@ def main() -> None:
     parser.add_argument("--rounds", type=int, default=30, help="rounds per session")
     parser.add_argument("--viewers", type=int, default=100, help="viewers (half never read)")
     parser.add_argument("--repeat", type=int, default=3, help="passes (median)")
+    parser.add_argument(
+        "--workers",
+        default="1",
+        help="rddl-server --workers (1: the view shares the sessions' loop)",
+    )
     parser.add_argument("--screenshot", type=Path, metavar="FOLDER", help="take the screenshots")
     parser.add_argument("--viewers-of", type=int, help=argparse.SUPPRESS)
     args = parser.parse_args()

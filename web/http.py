@@ -276,6 +276,8 @@ class WebServer:
             if request is None:
                 return  # the viewer closed the connection
             response = self._respond(request)
+            if isinstance(response, EventStream) and request.method == "HEAD":
+                response = Response(b"", content_type="text/event-stream; charset=utf-8")
             if isinstance(response, EventStream):
                 await self._stream_events(conn, stream, response)
                 return

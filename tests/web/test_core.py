@@ -106,6 +106,9 @@ async def test_page_headers_and_escaping() -> None:
         assert r.headers["content-type"] == SVG and HOSTILE not in r.text and ESCAPED in r.text
         head = await fetch(port, "/", method="HEAD")
         assert head.status == 200 and head.body == b""
+        head = await fetch(port, "/events", method="HEAD")
+        assert head.status == 200 and head.body == b""
+        assert head.headers["content-type"].startswith("text/event-stream")
 
 
 @pytest.mark.trio
