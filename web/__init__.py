@@ -39,8 +39,10 @@ The live feed (`feed.py`)::
   `rows_event(..., reset=True)`). Each viewer has a bounded queue
   (`Feed(queue_size=256)`); one that falls behind is dropped (its
   connection closed) and its browser reconnects for a fresh snapshot.
-  Publish coalesced changes (e.g. every 0.25 s from a task), not one event
-  per simulator step.
+  Publish coalesced changes (e.g. twice a second from a task, as
+  rddl-server's view does), not one event per simulator step: each event a
+  viewer gets costs the loop one send (~0.1-0.4 ms on loopback with 100
+  viewers, measured).
 
 Pages and the events live.js applies (`html.py`)::
 
