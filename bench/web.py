@@ -196,6 +196,54 @@ def step_cost(n: int = 200_000) -> tuple[float, float]:
     return out[0], out[1]
 
 
+def loop_steps(viewers: int, seconds: float = 5.0) -> int:
+    """In this process: rddl-server's view (`ServerView`, `serve_web`) in a
+    trio loop, with `viewers` viewers (another process) on its live page, and
+    a task that notes a step of one session every millisecond, as a session
+    sharing the loop would; how many steps it made in `seconds` (fewer: the
+    viewers' updates held the loop)."""
+    from functools import partial
+
+    import trio
+    from ippc.server.web import ServerView, SessionBoard
+    from ippc.web import WebOptions, serve_web
+
+    board = SessionBoard()
+    view = ServerView(board)
+    live = board.wrap(None)
+
+    async def main() -> int:
+        async with trio.open_nursery() as nursery:
+            port = await nursery.start(partial(serve_web, view.routes, WebOptions()))
+            nursery.start_soon(view.run)
+            watchers = None
+            if viewers:
+                watchers = await trio.to_thread.run_sync(start_viewers, port, viewers)
+            await trio.sleep(1.0)
+            sid = live.start_session(
+                server_session_id=1,
+                instance="i",
+                client_name="c",
+                seed=0,
+                num_rounds=30,
+                time_allowed_ms=1e6,
+                peer="p",
+                started_at=time.time(),
+            )
+            rid = live.start_round(sid, round_num=1, counted=True, started_at=time.time())
+            end = trio.current_time() + seconds
+            k = 0
+            while trio.current_time() < end:
+                k += 1
+                live.record_step(rid, turn_num=k, state=[], actions=[], reward=1.0)
+                await trio.sleep(0.001)
+            stop(watchers)
+            nursery.cancel_scope.cancel()
+        return k
+
+    return trio.run(main)
+
+
 def load() -> str:
     try:
         with open("/proc/loadavg") as f:
@@ -247,6 +295,11 @@ def bench(args: argparse.Namespace) -> None:
         print(
             f"a step's notes for the view (LiveStore.record_step, no database): {live:.2f} us"
             f" (a call that does nothing: {nothing:.2f} us)"
+        )
+        steps = {n: [loop_steps(n) for _ in range(3)] for n in (0, args.viewers)}
+        print(
+            "a task noting a step every ms beside the view, steps in 5 s (3 runs):"
+            + "".join(f"  {n} viewers: {', '.join(map(str, v))};" for n, v in steps.items())
         )
         print(f"load after: {load()}")
 
@@ -384,9 +437,13 @@ def main() -> None:
     )
     parser.add_argument("--screenshot", type=Path, metavar="FOLDER", help="take the screenshots")
     parser.add_argument("--viewers-of", type=int, help=argparse.SUPPRESS)
+    parser.add_argument("--loop-only", action="store_true", help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.viewers_of:
         viewers_main(args.viewers_of, args.viewers - args.viewers // 2, args.viewers // 2)
+    elif args.loop_only:
+        for n in (0, args.viewers, 0, args.viewers):
+            print(f"{n} viewers: {loop_steps(n)} steps in 5 s", flush=True)
     elif args.screenshot:
         screenshots(args.screenshot)
     else:

@@ -6,8 +6,9 @@ session ended). `LiveStore` stands in front of the store (or of no store,
 without --db), passes every call on unchanged and notes it in a
 `SessionBoard`: the live picture of every session, kept in memory. Noting a
 step is a few assignments; nothing is formatted, encoded or sent on the
-session's path. A task flushes the board every `FLUSH_INTERVAL` seconds:
-the sessions that changed since the last flush become JSON records.
+session's path. A task flushes the board every `FLUSH_INTERVAL` seconds
+(the view: every `ServerView.interval()`, longer with many viewers): the
+sessions that changed since the last flush become JSON records.
 
 - One process: `ServerView.run` takes the changed records and publishes
   them to the web feed (`ippc.web.Feed`), whose viewers each have a bounded
@@ -70,6 +71,10 @@ log = logging.getLogger(__name__)
 # loop a send to its socket (~0.1-0.4 ms on loopback, measured with 100
 # viewers), so twice a second, not at every change
 FLUSH_INTERVAL = 0.5
+# what one update to one viewer costs the loop, rounded up (a send on
+# loopback took 0.1-0.4 ms on the loaded 2-core test machine; bench/web.py
+# --loop-only; see `ServerView.interval`)
+VIEWER_SEND = 0.001
 KEEP_SESSIONS = 1000  # sessions the board remembers (the oldest ended ones go first)
 KEEP_ROUNDS = 1000  # rounds of a session it remembers (the last ones)
 LAST_TURNS = 20  # turns of a session shown on its page
@@ -525,13 +530,23 @@ class ServerView:
     # -- publishing
 
     async def run(self) -> None:
-        """Publish the board's changes until cancelled; the running
-        sessions' clocks every second."""
-        ticks = 0
+        """Publish the board's changes until cancelled (the running
+        sessions' clocks at least every second), every `interval()` seconds."""
+        last_clock = trio.current_time()
         while True:
-            await trio.sleep(FLUSH_INTERVAL)
-            ticks += 1
-            self.publish(clock=ticks % 2 == 0)
+            await trio.sleep(self.interval())
+            now = trio.current_time()
+            clock = now - last_clock >= 0.99
+            if clock:
+                last_clock = now
+            self.publish(clock=clock)
+
+    def interval(self) -> float:
+        """Seconds between two updates: FLUSH_INTERVAL, longer with many
+        viewers, so that their sends take about a tenth of the loop at most
+        (VIEWER_SEND seconds each) whatever their number: 0.5 s up to 50
+        viewers, 1 s with 100."""
+        return max(FLUSH_INTERVAL, 10 * VIEWER_SEND * self.feed.viewers)
 
     def publish(self, clock: bool = False) -> None:
         changed, removed = self.board.flush()
