@@ -39,6 +39,7 @@ import tempfile
 import threading
 import time
 from pathlib import Path
+from typing import Any
 
 HERE = Path(__file__).resolve().parent
 REPO = HERE.parent
@@ -152,6 +153,21 @@ def measure(
         stop(server)
 
 
+def open_round(live: Any) -> int:
+    """A session and its first round started on a `LiveStore`: the round's id."""
+    sid = live.start_session(
+        server_session_id=1,
+        instance="i",
+        client_name="c",
+        seed=0,
+        num_rounds=30,
+        time_allowed_ms=1e6,
+        peer="p",
+        started_at=time.time(),
+    )
+    return int(live.start_round(sid, round_num=1, counted=True, started_at=time.time()))
+
+
 def step_cost(n: int = 200_000) -> tuple[float, float]:
     """Microseconds a session's step spends on the view's notes: the
     result store's `record_step` through `LiveStore` (no database), against
@@ -164,17 +180,7 @@ def step_cost(n: int = 200_000) -> tuple[float, float]:
 
     board = SessionBoard()
     live = board.wrap(None)
-    sid = live.start_session(
-        server_session_id=1,
-        instance="i",
-        client_name="c",
-        seed=0,
-        num_rounds=30,
-        time_allowed_ms=1e6,
-        peer="p",
-        started_at=time.time(),
-    )
-    rid = live.start_round(sid, round_num=1, counted=True, started_at=time.time())
+    rid = open_round(live)
     state = [("running", (f"c{i}",), True) for i in range(10)]
     actions = [("reboot", ("c1",), True)]
     out = []
@@ -220,17 +226,7 @@ def loop_steps(viewers: int, seconds: float = 5.0) -> int:
             if viewers:
                 watchers = await trio.to_thread.run_sync(start_viewers, port, viewers)
             await trio.sleep(1.0)
-            sid = live.start_session(
-                server_session_id=1,
-                instance="i",
-                client_name="c",
-                seed=0,
-                num_rounds=30,
-                time_allowed_ms=1e6,
-                peer="p",
-                started_at=time.time(),
-            )
-            rid = live.start_round(sid, round_num=1, counted=True, started_at=time.time())
+            rid = open_round(live)
             end = trio.current_time() + seconds
             k = 0
             while trio.current_time() < end:
