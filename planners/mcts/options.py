@@ -12,12 +12,16 @@ from ..base import Planner
 
 ROLLOUT_POLICIES = ("random", "noop", "best")
 HEURISTICS = ("ids", "rollout")
+ENGINES = ("thts", "wave")
 
 OPTIONS: dict[str, str] = {
+    "engine": "the search: thts (one trial at a time on the grounded one-state step, "
+    "rddl.sim.scalar; where that step cannot be written, or for a POMDP, wave instead) or "
+    "wave (waves of trials over the batched simulator) (default wave)",
     "time_per_step": "seconds of search per turn (default: the client's deadline, the "
     "session's remaining time spread over its remaining steps)",
-    "iterations": "search exactly this many waves per turn, whatever the time (for "
-    "reproducible runs; default: search until the deadline)",
+    "iterations": "search exactly this many waves (engine wave) or trials (engine thts) per "
+    "turn, whatever the time (for reproducible runs; default: search until the deadline)",
     "exploration": "UCB1 exploration constant, scaled by the node's largest |Q| (default 2)",
     "rollout_depth": "steps of a leaf rollout (default 10; 0: to the lookahead limit)",
     "depth": "lookahead limit of the search in steps (default 0: the steps left in the "
@@ -68,6 +72,7 @@ OPTIONS: dict[str, str] = {
 class Settings:
     """Every option of `mcts`, typed, with its default."""
 
+    engine: str = "wave"
     time_per_step: float | None = None
     iterations: int | None = None
     exploration: float = 2.0
@@ -121,7 +126,11 @@ def read_settings(planner: Planner) -> Settings:
     heuristic = (planner.str_option("heuristic", "rollout") or "rollout").strip().lower()
     if heuristic not in HEURISTICS:
         raise planner._option_error("heuristic", heuristic, "one of " + ", ".join(HEURISTICS))
+    engine = (planner.str_option("engine", "wave") or "wave").strip().lower()
+    if engine not in ENGINES:
+        raise planner._option_error("engine", engine, "one of " + ", ".join(ENGINES))
     return Settings(
+        engine=engine,
         time_per_step=planner.float_option("time_per_step", None, minimum=0.0),
         iterations=planner.int_option("iterations", None, minimum=1),
         exploration=number("exploration", 2.0),

@@ -17,6 +17,7 @@ from typing import ClassVar
 import numpy as np
 
 from ...rddl.model import Model
+from ...rddl.sim.scalar import ScalarStep, ScalarUnsupported
 from ...rddl.simulator import SimulationError, Simulator, State
 from ...rddl.wire import WireCodec, WireError
 from ..base import Observation, Planner, PlannerError, SessionInfo, WireFluent
@@ -26,6 +27,7 @@ from .heuristic import IDS, RewardLocks, training_states
 from .options import OPTIONS, Settings, read_settings
 from .rollouts import Expander, _stack_states
 from .stats import SearchStats
+from .thts import THTS
 from .tree import _Node, _Outcome, _Trial, backup, best, refresh, select
 
 log = logging.getLogger(__name__)
@@ -61,6 +63,9 @@ class MCTSPlanner(Planner):
         self._belief: State | None = None  # POMDP particles
         self._last_action: dict[str, Array] | None = None
         self._discrete_obs = True
+        self._thts: THTS | None = None
+        self.engine = "wave"
+        """The search this session runs: thts, or wave (asked for, or the fallback)."""
 
     @property
     def library(self) -> ActionLibrary | None:
@@ -83,7 +88,25 @@ class MCTSPlanner(Planner):
         self._state_names = [p.name for p in sim.state_fluents]
         self._discrete_obs = all(p.range != "real" for p in sim.observ_fluents)
         self.stats = SearchStats()
-        log.info("mcts: %s, %s, seed %s", session.instance, self._chooser.describe(), seed)
+        self._thts = None
+        self.engine = "wave"
+        if self.settings.engine == "thts":
+            try:
+                scalar = ScalarStep(sim)
+            except ScalarUnsupported as err:
+                log.info("mcts: %s: no scalar step (%s); the wave search", session.instance, err)
+            else:
+                self._thts = THTS(
+                    sim, scalar, self._chooser, self.settings, self.rng, self._discount(), locks
+                )
+                self.engine = "thts"
+        log.info(
+            "mcts: %s, %s, engine %s, seed %s",
+            session.instance,
+            self._chooser.describe(),
+            self.engine,
+            seed,
+        )
 
     def _heuristic(self, session: SessionInfo) -> tuple[IDS | None, RewardLocks | None]:
         """IDS (learned on random-walk states, PROST's learning phase) and
@@ -149,6 +172,8 @@ class MCTSPlanner(Planner):
                 log.debug("mcts: warm-up step of %d states failed: %s", batch, err)
 
     def start_round(self, round_num: int) -> None:
+        if self._thts is not None:
+            self._thts.start_round()
         self._table = {}
         self._root = None
         self._last = None
@@ -196,6 +221,8 @@ class MCTSPlanner(Planner):
             deadline = min(started + st.time_per_step, obs.deadline)
         turn = SearchStats(turns=1)
         lookahead = obs.steps_left if st.depth == 0 else min(st.depth, obs.steps_left)
+        if self._thts is not None and obs.state is not None:
+            return self._act_thts(obs, lookahead, started, deadline, turn)
         root, reused = self._make_root(obs, lookahead)
         turn.reused = int(reused)
         clock = Deadline(None if st.iterations is not None else deadline)
@@ -246,6 +273,57 @@ class MCTSPlanner(Planner):
                 turn.steps_per_second,
                 float(q[choice]) if len(q) else 0.0,
                 ", ".join(self._sim.actions_to_names(actions)) or "noop",
+            )
+        return self._codec.actions(actions, index=0)
+
+    def _act_thts(
+        self,
+        obs: Observation,
+        lookahead: int,
+        started: float,
+        deadline: float,
+        turn: SearchStats,
+    ) -> list[WireFluent]:
+        """A turn of the `thts` engine (see `thts.py`)."""
+        search = self._thts
+        assert search is not None and obs.state is not None and self._codec is not None
+        assert self._chooser is not None
+        state = search.fast.encode_state(obs.state)
+        root = search.root(state, lookahead)
+        turn.reused = int(root.expanded)
+        # (a margin for sending the action: the search stops a little early)
+        stop = None if self.settings.iterations is not None else deadline - 0.002
+        collecting = gc.isenabled()
+        gc.disable()
+        try:
+            search.search(root, stop, self.settings.iterations, turn)
+        finally:
+            if collecting:
+                gc.enable()
+        choice = search.best(root)
+        row = root.rows[choice] if choice >= 0 else 0
+        if choice < 0:
+            log.warning(
+                "mcts: turn %d: no legal joint action in this state; sending noop", obs.turn
+            )
+        actions = self._chooser.lib.take(np.array([row]))
+        self._last_action = actions
+        turn.seconds = time.monotonic() - started
+        self.last_turn = turn
+        self.stats.add(turn)
+        if log.isEnabledFor(logging.DEBUG):
+            log.debug(
+                "mcts: turn %d (%d steps left): %d trials, %d leaves, %d steps in %.3f s; "
+                "value %.3f%s; chose %s",
+                obs.turn,
+                obs.steps_left,
+                turn.trials,
+                turn.leaves,
+                turn.sim_steps,
+                turn.seconds,
+                root.value,
+                " (solved)" if root.solved else "",
+                ", ".join(self._sim.actions_to_names(actions)) if self._sim else "",
             )
         return self._codec.actions(actions, index=0)
 

@@ -1,0 +1,576 @@
+"""`THTS`: the single-state trial-based heuristic tree search of `mcts`
+(option `engine = thts`), on the grounded one-state step of
+`ippc.rddl.sim.scalar` (`ScalarStep`).
+
+One trial at a time, as in Keller & Helmert 2013 and PROST:
+
+* A *decision node* (`TNode`) is a state (the step's tuple of scalars)
+  with the steps left; all nodes live in a transposition table keyed by
+  (steps left, state), kept across trials and across the turns of a round,
+  so the observed state's node is the next root with what was learnt below.
+* A trial descends from the root: at an expanded node it picks an action
+  by UCB1 among the actions not solved yet, samples one successor of it
+  through `ScalarStep.step` (a *chance node* is the action's dict of sampled
+  outcomes with their counts and rewards), and goes on until it reaches a
+  node not expanded yet (which it expands, PROST's one new decision node a
+  trial), a solved node, or the end of the lookahead. The values are then
+  backed up along the path, MaxMonteCarlo: a decision node is worth its
+  best action, an action its first estimate (as `init_weight` visits)
+  averaged with its outcomes' rewards and current values, weighted by
+  their sample counts; an action with at most `bellman_outcomes` outcomes
+  reads all of them afresh at each backup (a partial Bellman backup: with
+  transpositions a node's value also changes through other paths).
+* *Expansion* probes every candidate action once with two recording draw
+  generators (`_Probe`): the generated step compares each uniform draw
+  with its probability (`u < p`) and multiplies each normal draw by its
+  standard deviation, and the probe records these. An action all of whose
+  probabilities are 0 or 1 (and standard deviations 0) is *deterministic*:
+  its one successor is known. Two actions with the same records and the
+  same successors and rewards under both probes are *equivalent* (the same
+  probabilities at every draw the step makes: the same successor
+  distribution and reward): only the first (noop first) is kept. With one
+  step left, an action's value is its reward, exact when both probes give
+  the same reward (the last step is evaluated, not sampled, and solved).
+  Otherwise each kept action gets a first estimate: its reward plus the
+  discounted value of a roll-out (`rollout_policy`: random legal-at-start
+  joint actions, noop, or both with the better counting) of up to
+  `rollout_depth` steps from a sampled successor (from the known one when
+  deterministic), cut short ones extrapolated over the steps left as the
+  wave search does.
+* *Solved labelling*: a node with no steps left or terminal is solved at
+  0; a deterministic action whose successor is solved is solved (its value
+  exact); a node whose actions are all solved is solved; trials never
+  descend into solved actions, and a solved root ends the turn's search.
+  With `reward_locks`, a new node where the reward can no longer change is
+  solved at once (`heuristic.RewardLocks`).
+* *Time*: the turn ends at its deadline less the slowest recent trial
+  (a decaying maximum), checked between trials and between the actions of
+  an expansion, so a turn ends within about one trial's time of its
+  budget; with `iterations` exactly that many trials run (a seed then gives
+  the same search on any machine). The root's own expansion always
+  completes.
+
+The action draws of roll-outs and UCB1's tie-breaks use a Python
+`random.Random` seeded from the planner's generator, and the step's draws
+the planner's numpy generator: the same seed gives the same search.
+
+Imports the scalar step, the tree-independent parts of the package
+(`actions`, `heuristic`'s reward locks, `options`, `stats`).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import random
+import time
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+
+from ...rddl.sim.scalar import ScalarStep
+from ...rddl.simulator import Simulator
+from .actions import ActionChooser, state_dependent
+from .heuristic import RewardLocks
+from .options import Settings
+from .stats import SearchStats
+
+log = logging.getLogger(__name__)
+
+StateT = tuple[Any, ...]
+ActT = tuple[Any, ...]
+
+
+class _U:
+    """A uniform draw that records the probability it is compared with."""
+
+    __slots__ = ("u", "log")
+
+    def __init__(self, u: float, record: list[float]):
+        self.u = u
+        self.log = record
+
+    def __lt__(self, p: float) -> bool:
+        self.log.append(float(p))
+        return self.u < p
+
+    def __gt__(self, p: float) -> bool:  # (p < u, written the other way round)
+        self.log.append(float(p))
+        return self.u > p
+
+
+class _Z:
+    """A standard normal draw that records the factor it is scaled by."""
+
+    __slots__ = ("z", "log")
+
+    def __init__(self, z: float, record: list[float]):
+        self.z = z
+        self.log = record
+
+    def __rmul__(self, x: float) -> float:
+        self.log.append(float(x) + 2.0)  # (kept apart from probabilities in [0, 1])
+        return x * self.z
+
+    __mul__ = __rmul__
+
+
+class _Draws:
+    __slots__ = ("items",)
+
+    def __init__(self, items: list[Any]):
+        self.items = items
+
+    def tolist(self) -> list[Any]:
+        return self.items
+
+
+class _Probe:
+    """A draw generator for `ScalarStep.step` with fixed draws that records
+    every probability and standard deviation the step uses (`log`)."""
+
+    def __init__(self, rng: np.random.Generator):
+        self.log: list[float] = []
+        self._rng = rng
+        self._u = _Draws([])
+        self._z = _Draws([])
+
+    def random(self, n: int) -> _Draws:
+        items = self._u.items
+        if len(items) < n:  # (drawn once, from the seeded generator)
+            items.extend(_U(u, self.log) for u in self._rng.random(n - len(items)).tolist())
+        return self._u
+
+    def standard_normal(self, n: int) -> _Draws:
+        items = self._z.items
+        if len(items) < n:
+            items.extend(
+                _Z(z, self.log) for z in self._rng.standard_normal(n - len(items)).tolist()
+            )
+        return self._z
+
+
+def _deterministic(record: list[float]) -> bool:
+    """Whether every probability recorded is 0 or 1 and every standard
+    deviation 0 (the draws decided nothing)."""
+    for p in record:
+        if p >= 2.0:
+            if p != 2.0:
+                return False
+        elif 0.0 < p < 1.0:
+            return False
+    return True
+
+
+class TNode:
+    """A decision node: a state, the steps left and per-action statistics."""
+
+    __slots__ = (
+        "state",
+        "steps",
+        "done",
+        "expanded",
+        "solved",
+        "value",
+        "rows",
+        "acts",
+        "h",
+        "n",
+        "tot",
+        "q",
+        "outs",
+        "det",
+        "asolved",
+        "visits",
+    )
+
+    def __init__(self, state: StateT, steps: int, done: bool):
+        self.state = state
+        self.steps = steps
+        self.done = done
+        self.expanded = False
+        self.solved = done or steps <= 0
+        self.value = 0.0
+        self.rows: list[int] = []  # library rows of the kept candidates
+        self.acts: list[ActT] = []  # their action tuples
+        self.h: list[float] = []  # first estimates
+        self.n: list[int] = []  # samples
+        self.tot: list[float] = []  # sum over outcomes of rsum + gamma count value
+        self.q: list[float] = []
+        # per action: successor state -> [node, count, reward sum, contribution]
+        self.outs: list[dict[StateT, list[Any]]] = []
+        self.det: list[bool] = []
+        self.asolved: list[bool] = []
+        self.visits = 0
+
+
+class _Stop(Exception):
+    """The deadline came during an expansion."""
+
+
+class THTS:
+    """The search of one session (see the module docstring)."""
+
+    def __init__(
+        self,
+        sim: Simulator,
+        scalar: ScalarStep,
+        chooser: ActionChooser,
+        settings: Settings,
+        rng: np.random.Generator,
+        gamma: float,
+        locks: RewardLocks | None = None,
+    ) -> None:
+        self.sim = sim
+        self.fast = scalar
+        self.chooser = chooser
+        self.st = settings
+        self.rng = rng
+        self.py = random.Random(int(rng.integers(0, 2**63 - 1)))
+        self.gamma = gamma
+        self.locks = locks
+        self.table: dict[int, dict[StateT, TNode]] = {}
+        self._tuples: dict[int, ActT] = {}
+        probe_rng = np.random.default_rng(int(rng.integers(0, 2**63 - 1)))
+        self.probes = (_Probe(probe_rng), _Probe(probe_rng))
+        dom = sim.model.domain
+        constraints = [*dom.action_preconditions, *dom.state_action_constraints]
+        self._static = not state_dependent(sim.model, constraints)
+        self._static_rows: list[int] | None = None
+        self._lock_cache: dict[tuple[int, StateT], str | None] = {}
+        pool = chooser.pool
+        self.pool: list[ActT] | None = (
+            None if pool is None else [self._tuple(int(r)) for r in pool.tolist()]
+        )
+        self.deadline: float | None = None
+        self.piece = 0.0  # the slowest recent trial (decaying)
+        self.turn = SearchStats()
+        self.locked = 0
+
+    # -- actions -------------------------------------------------------------
+
+    def _tuple(self, row: int) -> ActT:
+        t = self._tuples.get(row)
+        if t is None:
+            t = self._tuples[row] = self.fast.encode_actions(
+                self.chooser.lib.take(np.array([row]))
+            )
+        return t
+
+    def _candidates(self, state: StateT) -> list[int]:
+        if self._static and self._static_rows is not None:
+            return self._static_rows
+        rows = self.chooser.candidates([self.fast.decode_state(state)])[0].tolist()
+        if self._static:
+            self._static_rows = rows
+        return rows
+
+    # -- the turn --------------------------------------------------------------
+
+    def start_round(self) -> None:
+        self.table = {}
+
+    def root(self, state: StateT, steps: int) -> TNode:
+        """The node of the observed state (the table's, with what was
+        searched below it, else a new one); deeper buckets are dropped."""
+        for k in [k for k in self.table if k > steps]:
+            del self.table[k]
+        if sum(len(b) for b in self.table.values()) > self.st.max_nodes:
+            self.table = {}
+        return self._node(state, steps, False)
+
+    def _node(self, state: StateT, steps: int, done: bool) -> TNode:
+        bucket = self.table.get(steps)
+        if bucket is None:
+            bucket = self.table[steps] = {}
+        node = bucket.get(state)
+        if node is None:
+            node = bucket[state] = TNode(state, steps, done)
+        return node
+
+    def search(
+        self, root: TNode, deadline: float | None, iterations: int | None, turn: SearchStats
+    ) -> None:
+        """Trials from `root` until the deadline (or exactly `iterations`)."""
+        self.turn = turn
+        self.deadline = None
+        if not root.expanded and not root.solved:
+            self._expand(root)  # always completes
+        self.deadline = deadline
+        self.piece = 0.0
+        done = 0
+        clock = time.monotonic
+        while not root.solved:
+            if iterations is not None:
+                if done >= iterations:
+                    break
+            elif deadline is not None and clock() + self.piece >= deadline:
+                break
+            t0 = clock()
+            try:
+                self._trial(root)
+            except _Stop:
+                break
+            done += 1
+            took = clock() - t0
+            self.piece = max(took, 0.8 * self.piece)
+        turn.trials += done
+        self.refresh(root)
+
+    def best(self, root: TNode) -> int:
+        """The index of the action to play: the best value, then the most
+        samples, then the first (noop first)."""
+        if not root.q:
+            return -1
+        top = max(root.q)
+        cands = [a for a, v in enumerate(root.q) if v >= top - 1e-9 * max(1.0, abs(top))]
+        return max(cands, key=lambda a: (root.n[a], -a))
+
+    # -- trials ----------------------------------------------------------------
+
+    def _trial(self, root: TNode) -> None:
+        path: list[tuple[TNode, int, list[Any]]] = []
+        node = root
+        step = self.fast.step
+        rng = self.rng
+        turn = self.turn
+        while not node.solved:
+            if not node.expanded:
+                self._expand(node)
+                break
+            a = self._select(node)
+            nxt, r, done = step(node.state, node.acts[a], rng)
+            turn.sim_steps += 1
+            outs = node.outs[a]
+            out = outs.get(nxt)
+            if out is None:
+                out = outs[nxt] = [self._node(nxt, node.steps - 1, done), 0, 0.0, 0.0]
+            out[1] += 1
+            out[2] += r
+            path.append((node, a, out))
+            node = out[0]
+        gamma = self.gamma
+        limit = self.st.bellman_outcomes
+        for node, a, out in reversed(path):
+            child = out[0]
+            node.n[a] += 1
+            node.visits += 1
+            outs = node.outs[a]
+            if len(outs) <= limit:
+                tot = 0.0
+                for o in outs.values():
+                    c = o[2] + gamma * o[1] * o[0].value
+                    o[3] = c
+                    tot += c
+                node.tot[a] = tot
+            else:
+                c = out[2] + gamma * out[1] * child.value
+                node.tot[a] += c - out[3]
+                out[3] = c
+            self._update(node, a, out)
+
+    def _update(self, node: TNode, a: int, out: list[Any] | None) -> None:
+        """The action's value from its statistics, then the node's."""
+        if node.det[a] and out is not None and out[0].solved:
+            node.asolved[a] = True
+            node.q[a] = out[2] / out[1] + self.gamma * out[0].value
+        elif not node.asolved[a]:
+            w = self.st.init_weight
+            node.q[a] = (w * node.h[a] + node.tot[a]) / (w + node.n[a])
+        node.value = max(node.q)
+        if node.asolved[a] and all(node.asolved):
+            node.solved = True
+
+    def refresh(self, node: TNode) -> None:
+        """Every action of `node` from its outcomes' current values (before
+        the choice: a value below may have changed through another path)."""
+        gamma = self.gamma
+        for a, outs in enumerate(node.outs):
+            if node.asolved[a] or not outs:
+                continue
+            tot = 0.0
+            for o in outs.values():
+                c = o[2] + gamma * o[1] * o[0].value
+                o[3] = c
+                tot += c
+            node.tot[a] = tot
+            self._update(node, a, next(iter(outs.values())) if node.det[a] else None)
+
+    def _select(self, node: TNode) -> int:
+        """UCB1 over the unsolved actions, the exploration scaled by the
+        node's largest |Q|."""
+        q = node.q
+        n = node.n
+        w = self.st.init_weight
+        scale = max(abs(max(q)), abs(min(q))) or 1.0
+        c = self.st.exploration * scale
+        logn = math.log(node.visits + w * len(q) + 1.0)
+        best = -math.inf
+        pick = -1
+        ties = 0
+        solved = node.asolved
+        for a in range(len(q)):
+            if solved[a]:
+                continue
+            v = q[a] + c * math.sqrt(logn / (w + n[a]))
+            if v > best:
+                best = v
+                pick = a
+                ties = 1
+            elif v == best:
+                ties += 1
+                if self.py.random() * ties < 1.0:
+                    pick = a
+        return pick
+
+    # -- expansion -------------------------------------------------------------
+
+    def _check(self) -> None:
+        if self.deadline is not None and time.monotonic() >= self.deadline:
+            raise _Stop
+
+    def _probe(self, state: StateT, act: ActT) -> tuple[Any, ...]:
+        """(deterministic, signature, successor, reward, done) of an action
+        under the two probes (see the module docstring)."""
+        step = self.fast.step
+        p, q = self.probes
+        p.log.clear()
+        q.log.clear()
+        s1, r1, d1 = step(state, act, p)  # type: ignore[arg-type]
+        s2, r2, d2 = step(state, act, q)  # type: ignore[arg-type]
+        det = _deterministic(p.log) and _deterministic(q.log)
+        sig = (tuple(p.log), tuple(q.log), s1, r1, d1, s2, r2, d2)
+        return det, sig, s1, r1, d1, r1 == r2
+
+    def _expand(self, node: TNode) -> None:
+        turn = self.turn
+        state = node.state
+        if self.locks is not None and self._lock(node):
+            return
+        rows = self._candidates(state)
+        seen: set[tuple[Any, ...]] = set()
+        kept: list[tuple[int, ActT, bool, StateT, float, bool, bool]] = []
+        for row in rows:
+            act = self._tuple(row)
+            det, sig, s1, r1, d1, same_r = self._probe(state, act)
+            turn.sim_steps += 2
+            if sig in seen:
+                continue
+            seen.add(sig)
+            kept.append((row, act, det, s1, r1, d1, same_r))
+        h: list[float] = []
+        asolved: list[bool] = []
+        gamma = self.gamma
+        for row, act, det, s1, r1, d1, same_r in kept:
+            if node.steps == 1 or (det and d1):
+                h.append(r1)
+                asolved.append(same_r if not det else True)
+                continue
+            self._check()
+            if det:
+                nxt, r, done = s1, r1, d1
+            else:
+                nxt, r, done = self.fast.step(state, act, self.rng)
+                turn.sim_steps += 1
+            value = 0.0 if done else self._rollout(nxt, node.steps - 1)
+            h.append(r + gamma * value)
+            asolved.append(False)
+        node.rows = [k[0] for k in kept]
+        node.acts = [k[1] for k in kept]
+        node.det = [k[2] for k in kept]
+        node.h = h
+        node.q = list(h)
+        node.n = [0] * len(kept)
+        node.tot = [0.0] * len(kept)
+        node.outs = [{} for _ in kept]
+        node.asolved = asolved
+        node.expanded = True
+        turn.leaves += 1
+        if not kept:  # a dead end: nothing legal
+            node.solved = True
+            node.value = 0.0
+            return
+        node.value = max(h)
+        node.solved = all(asolved)
+
+    def _lock(self, node: TNode) -> bool:
+        """Solve a reward lock at once (with `reward_locks`)."""
+        assert self.locks is not None
+        key = (node.steps, node.state)
+        kind = self._lock_cache.get(key, "?")
+        if kind == "?":
+            try:
+                kind = self.locks.check(self.fast.decode_state(node.state), node.steps)
+            except Exception as err:  # noqa: BLE001 - the check is an optimisation
+                log.debug("mcts: reward-lock check failed: %s", err)
+                kind = None
+            if len(self._lock_cache) < 100_000:
+                self._lock_cache[key] = kind
+        if kind is None:
+            return False
+        _, r, _ = self.fast.step(node.state, self.fast.noop, self.rng)
+        g = self.gamma
+        value = r * node.steps if g == 1.0 else r * (1.0 - g**node.steps) / (1.0 - g)
+        node.rows = [0]
+        node.acts = [self.fast.noop]
+        node.det = [True]
+        node.h = [value]
+        node.q = [value]
+        node.n = [0]
+        node.tot = [0.0]
+        node.outs = [{}]
+        node.asolved = [True]
+        node.expanded = True
+        node.solved = True
+        node.value = value
+        self.turn.locks += 1
+        self.turn.leaves += 1
+        return True
+
+    def _rollout(self, state: StateT, steps: int) -> float:
+        """A roll-out's return from `state` with `steps` left (see the module
+        docstring)."""
+        policy = self.st.rollout_policy
+        if policy == "noop":
+            return self._walk(state, steps, None)
+        if policy == "random":
+            return self._walk(state, steps, self.pool)
+        return max(self._walk(state, steps, None), self._walk(state, steps, self.pool))
+
+    def _walk(self, state: StateT, steps: int, pool: list[ActT] | None) -> float:
+        depth = self.st.rollout_depth
+        n = steps if depth == 0 else min(depth, steps)
+        step = self.fast.step
+        rng = self.rng
+        noop = self.fast.noop
+        choose: Callable[[], ActT] | None = None
+        if pool is not None and pool:
+            pick = self.py.randrange
+            size = len(pool)
+
+            def choose() -> ActT:
+                return pool[pick(size)]
+
+        total = 0.0
+        disc = 1.0
+        g = self.gamma
+        taken = 0
+        for _ in range(n):
+            act = noop if choose is None else choose()
+            state, r, done = step(state, act, rng)
+            total += disc * r
+            disc *= g
+            taken += 1
+            if done:
+                self.turn.sim_steps += taken
+                return total
+        self.turn.sim_steps += taken
+        if taken < steps and taken > 0 and self.st.extrapolate:
+            # the mean discounted reward a step over all the steps left
+            if g == 1.0:
+                return total * steps / taken
+            full = (1.0 - g**steps) / (1.0 - g)
+            part = (1.0 - g**taken) / (1.0 - g)
+            return total * full / part
+        return total
