@@ -82,24 +82,25 @@ class MCTSPlanner(Planner):
         self._model = session.model
         self._codec = WireCodec(sim)
         self._chooser = ActionChooser(sim, self.settings, self.rng)
-        self._warm_up(sim)
-        ids, locks = self._heuristic(session)
-        self._expander = Expander(sim, self._chooser, self.settings, self.rng, ids, locks)
         self._state_names = [p.name for p in sim.state_fluents]
         self._discrete_obs = all(p.range != "real" for p in sim.observ_fluents)
         self.stats = SearchStats()
         self._thts = None
+        self._expander = None
         self.engine = "wave"
+        scalar = None
         if self.settings.engine == "thts":
             try:
                 scalar = ScalarStep(sim)
             except ScalarUnsupported as err:
                 log.info("mcts: %s: no scalar step (%s); the wave search", session.instance, err)
-            else:
-                self._thts = THTS(
-                    sim, scalar, self._chooser, self.settings, self.rng, self._discount(), locks
-                )
-                self.engine = "thts"
+        if scalar is None:
+            self._warm_up(sim)
+            ids, locks = self._heuristic(session)
+            self._expander = Expander(sim, self._chooser, self.settings, self.rng, ids, locks)
+        else:
+            self._thts = self._start_thts(session, scalar, seed)
+            self.engine = "thts"
         log.info(
             "mcts: %s, %s, engine %s, seed %s",
             session.instance,
@@ -107,6 +108,35 @@ class MCTSPlanner(Planner):
             self.engine,
             seed,
         )
+
+    def _start_thts(self, session: SessionInfo, scalar: ScalarStep, seed: int | None) -> THTS:
+        """The `thts` engine of this session: the reward-lock check when asked
+        for, and IDS's depth (fixed, or learned on random-walk states with
+        their own generator, so the search's draws stay those of the seed)."""
+        st = self.settings
+        sim = session.simulator
+        assert self._chooser is not None
+        locks = None
+        if st.reward_locks:
+            try:
+                table = IDS.for_model(session.model, enumerate_limit=st.enumerate_limit).table
+            except SimulationError as err:
+                log.warning("mcts: no reward-lock check for %s (%s)", session.instance, err)
+                table = None
+            if table is not None:
+                locks = RewardLocks(session.model, table)
+        search = THTS(sim, scalar, self._chooser, st, self.rng, self._discount(), locks)
+        if st.heuristic == "ids":
+            fixed = st.ids_depth or (5 if st.iterations is not None else 0)
+            if fixed:
+                search.ids_depth = fixed
+            else:
+                rng = np.random.default_rng(None if seed is None else [seed, 1])
+                train = training_states(sim, rng)
+                states = [scalar.encode_state(train, i) for i in range(min(train.batch, 16))]
+                depth = search.learn_ids(states, session.model.horizon or 40, st.ids_timeout)
+                log.info("mcts: %s: IDS depth %d", session.instance, depth)
+        return search
 
     def _heuristic(self, session: SessionInfo) -> tuple[IDS | None, RewardLocks | None]:
         """IDS (learned on random-walk states, PROST's learning phase) and

@@ -151,6 +151,27 @@ class _Probe:
         return self._z
 
 
+class _Likely:
+    """The draws of the most-likely determinisation: every uniform 0.5 (a
+    Bernoulli is true exactly when its probability is above a half; a
+    Discrete takes the case where its cumulative probability passes a half,
+    its median) and every normal 0 (its mean)."""
+
+    def __init__(self) -> None:
+        self._u = _Draws([])
+        self._z = _Draws([])
+
+    def random(self, n: int) -> _Draws:
+        if len(self._u.items) < n:
+            self._u.items.extend([0.5] * (n - len(self._u.items)))
+        return self._u
+
+    def standard_normal(self, n: int) -> _Draws:
+        if len(self._z.items) < n:
+            self._z.items.extend([0.0] * (n - len(self._z.items)))
+        return self._z
+
+
 def _deterministic(record: list[float]) -> bool:
     """Whether every probability recorded is 0 or 1 and every standard
     deviation 0 (the draws decided nothing)."""
@@ -243,6 +264,9 @@ class THTS:
         self.pool: list[ActT] | None = (
             None if pool is None else [self._tuple(int(r)) for r in pool.tolist()]
         )
+        self.likely = _Likely()
+        self.ids_depth = 0  # 0: no IDS (roll-outs); set by `learn_ids`
+        self._ids_cache: dict[tuple[int, StateT], float] = {}
         self.deadline: float | None = None
         self.piece = 0.0  # the slowest recent trial (decaying)
         self.turn = SearchStats()
@@ -462,6 +486,12 @@ class THTS:
         h: list[float] = []
         asolved: list[bool] = []
         gamma = self.gamma
+        if self.ids_depth and node.steps > 1:
+            ids = self._ids_values(node, kept)
+            if ids is not None:
+                self._set_expanded(node, kept, ids, [False] * len(kept))
+                turn.ids_leaves += 1
+                return
         for row, act, det, s1, r1, d1, same_r in kept:
             if node.steps == 1 or (det and d1):
                 h.append(r1)
@@ -476,6 +506,11 @@ class THTS:
             value = 0.0 if done else self._rollout(nxt, node.steps - 1)
             h.append(r + gamma * value)
             asolved.append(False)
+        self._set_expanded(node, kept, h, asolved)
+
+    def _set_expanded(
+        self, node: TNode, kept: list[Any], h: list[float], asolved: list[bool]
+    ) -> None:
         node.rows = [k[0] for k in kept]
         node.acts = [k[1] for k in kept]
         node.det = [k[2] for k in kept]
@@ -486,13 +521,84 @@ class THTS:
         node.outs = [{} for _ in kept]
         node.asolved = asolved
         node.expanded = True
-        turn.leaves += 1
+        self.turn.leaves += 1
         if not kept:  # a dead end: nothing legal
             node.solved = True
             node.value = 0.0
             return
         node.value = max(h)
         node.solved = all(asolved)
+
+    # -- IDS on the most-likely determinisation ---------------------------------
+
+    def _ids_values(self, node: TNode, kept: list[Any]) -> list[float] | None:
+        """PROST's IDS estimate of each kept action (None where it values
+        them all alike: roll-outs then): its reward plus the depth-(d-1)
+        value of its successor on the most-likely determinisation, scaled to
+        the steps left at the same reward a step, times `heuristic_weight`."""
+        steps = node.steps
+        d = min(self.ids_depth, steps)
+        out = []
+        step = self.fast.step
+        for _, act, _, _, _, _, _ in kept:
+            self._check()
+            nxt, r, done = step(node.state, act, self.likely)  # type: ignore[arg-type]
+            self.turn.sim_steps += 1
+            v = r if done or d <= 1 else r + self.gamma * self._ids(nxt, d - 1)
+            out.append(v)
+        if max(out) == min(out) and len(out) > 1:
+            return None
+        scale = self.st.heuristic_weight * (steps / d if self.gamma == 1.0 else 1.0)
+        return [v * scale for v in out]
+
+    def _ids(self, state: StateT, depth: int) -> float:
+        """The best depth-`depth` return from `state` on the determinisation
+        (cached for the session)."""
+        key = (depth, state)
+        cache = self._ids_cache
+        v = cache.get(key)
+        if v is not None:
+            return v
+        step = self.fast.step
+        best = -math.inf
+        seen: set[tuple[StateT, float]] = set()
+        for row in self._candidates(state):
+            nxt, r, done = step(state, self._tuple(row), self.likely)  # type: ignore[arg-type]
+            self.turn.sim_steps += 1
+            if (nxt, r) in seen:
+                continue
+            seen.add((nxt, r))
+            if not done and depth > 1:
+                r += self.gamma * self._ids(nxt, depth - 1)
+            if r > best:
+                best = r
+        if best == -math.inf:
+            best = 0.0
+        if len(cache) > 500_000:
+            cache.clear()
+        cache[key] = best
+        return best
+
+    def learn_ids(self, states: list[StateT], steps: int, timeout: float) -> int:
+        """The deepest IDS depth (at most `steps`, at most 15) whose search
+        takes at most `timeout` seconds a state on average over `states`
+        (PROST's learning phase; 0 when not even depth 2 does)."""
+        depth = 0
+        for d in range(2, min(15, steps) + 1):
+            self._ids_cache.clear()
+            t0 = time.monotonic()
+            for s in states:
+                for row in self._candidates(s):
+                    nxt, r, done = self.fast.step(s, self._tuple(row), self.likely)  # type: ignore[arg-type]
+                    if not done:
+                        self._ids(nxt, d - 1)
+            took = (time.monotonic() - t0) / max(1, len(states))
+            if took > timeout:
+                break
+            depth = d
+        self._ids_cache.clear()
+        self.ids_depth = depth
+        return depth
 
     def _lock(self, node: TNode) -> bool:
         """Solve a reward lock at once (with `reward_locks`)."""
