@@ -41,7 +41,7 @@ OPTIONS: dict[str, str] = {
     "init_weight": "visits the heuristic estimate of a new action counts as (default 1)",
     "heuristic": "how a new node's actions get their first values: rollout, or ids (PROST's "
     "iterative deepening search on the most-likely determinisation, with rollouts where it "
-    "is too slow or values every action alike) (default rollout)",
+    "is too slow or values every action alike) (default ids with engine thts, else rollout)",
     "heuristic_weight": "the ids estimate is multiplied by this (PROST's is 0.5; default 1, "
     "the scale of the rollouts that stand in where ids cannot tell the actions apart)",
     "ids_timeout": "seconds of ids search per new node, which sets its depth in a learning "
@@ -123,12 +123,14 @@ def read_settings(planner: Planner) -> Settings:
         raise planner._option_error(
             "rollout_policy", policy, "one of " + ", ".join(ROLLOUT_POLICIES)
         )
-    heuristic = (planner.str_option("heuristic", "rollout") or "rollout").strip().lower()
-    if heuristic not in HEURISTICS:
-        raise planner._option_error("heuristic", heuristic, "one of " + ", ".join(HEURISTICS))
     engine = (planner.str_option("engine", "wave") or "wave").strip().lower()
     if engine not in ENGINES:
         raise planner._option_error("engine", engine, "one of " + ", ".join(ENGINES))
+    # the measured best of each engine: IDS for thts (as PROST's), roll-outs for wave
+    default_h = "ids" if engine == "thts" else "rollout"
+    heuristic = (planner.str_option("heuristic", default_h) or default_h).strip().lower()
+    if heuristic not in HEURISTICS:
+        raise planner._option_error("heuristic", heuristic, "one of " + ", ".join(HEURISTICS))
     return Settings(
         engine=engine,
         time_per_step=planner.float_option("time_per_step", None, minimum=0.0),

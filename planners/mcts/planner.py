@@ -9,6 +9,7 @@ candidates and rollout actions.
 
 from __future__ import annotations
 
+import dataclasses
 import gc
 import logging
 import time
@@ -125,7 +126,14 @@ class MCTSPlanner(Planner):
                 table = None
             if table is not None:
                 locks = RewardLocks(session.model, table)
-        search = THTS(sim, scalar, self._chooser, st, self.rng, self._discount(), locks)
+        # Equivalent actions are pruned in every new node, so the candidates
+        # are the legal joint actions up to 8 x max_actions (TriangleTireworld
+        # #5 has 813, of which a state keeps a handful) before a sample.
+        chooser = ActionChooser(
+            sim, dataclasses.replace(st, max_actions=8 * st.max_actions), self.rng
+        )
+        self._chooser = chooser
+        search = THTS(sim, scalar, chooser, st, self.rng, self._discount(), locks)
         if st.heuristic == "ids":
             fixed = st.ids_depth or (5 if st.iterations is not None else 0)
             if fixed:
@@ -219,6 +227,8 @@ class MCTSPlanner(Planner):
         )
 
     def end_session(self, total_reward: float) -> None:
+        if self._thts is not None:
+            gc.unfreeze()
         s = self.stats
         log.info(
             "mcts: session reward %s; %d turns, %d waves, %d trials, %d leaves, %d simulated "
@@ -329,6 +339,10 @@ class MCTSPlanner(Planner):
             search.search(root, stop, self.settings.iterations, turn)
         finally:
             if collecting:
+                # The search graph (acyclic: reference counting frees what
+                # it drops) moves to the collector's permanent generation, so
+                # that no full pass over it falls inside a later turn.
+                gc.freeze()
                 gc.enable()
         choice = search.best(root)
         row = root.rows[choice] if choice >= 0 else 0

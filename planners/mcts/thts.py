@@ -318,10 +318,9 @@ class THTS:
     ) -> None:
         """Trials from `root` until the deadline (or exactly `iterations`)."""
         self.turn = turn
-        self.deadline = None
-        if not root.expanded and not root.solved:
-            self._expand(root)  # always completes
         self.deadline = deadline
+        if not root.expanded and not root.solved:
+            self._expand(root, root=True)  # always completes
         self.piece = 0.0
         done = 0
         clock = time.monotonic
@@ -462,12 +461,20 @@ class THTS:
         p.log.clear()
         q.log.clear()
         s1, r1, d1 = step(state, act, p)  # type: ignore[arg-type]
+        self.turn.sim_steps += 1
+        if _deterministic(p.log):
+            # the draws decided nothing: this is the one successor
+            return True, (tuple(p.log), s1, r1, d1), s1, r1, d1, True
         s2, r2, d2 = step(state, act, q)  # type: ignore[arg-type]
-        det = _deterministic(p.log) and _deterministic(q.log)
+        self.turn.sim_steps += 1
         sig = (tuple(p.log), tuple(q.log), s1, r1, d1, s2, r2, d2)
-        return det, sig, s1, r1, d1, r1 == r2
+        return False, sig, s1, r1, d1, r1 == r2
 
-    def _expand(self, node: TNode) -> None:
+    def _expand(self, node: TNode, root: bool = False) -> None:
+        """Probe, prune and first values of a new node's actions. At the
+        deadline a node other than the root is left unexpanded (`_Stop`);
+        the root's actions not valued yet get their reward times the steps
+        left instead."""
         turn = self.turn
         state = node.state
         if self.locks is not None and self._lock(node):
@@ -478,7 +485,6 @@ class THTS:
         for row in rows:
             act = self._tuple(row)
             det, sig, s1, r1, d1, same_r = self._probe(state, act)
-            turn.sim_steps += 2
             if sig in seen:
                 continue
             seen.add(sig)
@@ -486,8 +492,14 @@ class THTS:
         h: list[float] = []
         asolved: list[bool] = []
         gamma = self.gamma
+        late = False
         if self.ids_depth and node.steps > 1:
-            ids = self._ids_values(node, kept)
+            try:
+                ids = self._ids_values(node, kept)
+            except _Stop:
+                if not root:
+                    raise
+                ids, late = None, True
             if ids is not None:
                 self._set_expanded(node, kept, ids, [False] * len(kept))
                 turn.ids_leaves += 1
@@ -497,7 +509,14 @@ class THTS:
                 h.append(r1)
                 asolved.append(same_r if not det else True)
                 continue
-            self._check()
+            if not late and self.deadline is not None and time.monotonic() >= self.deadline:
+                if not root:
+                    raise _Stop
+                late = True
+            if late:
+                h.append(r1 * self._horizon(node.steps))
+                asolved.append(False)
+                continue
             if det:
                 nxt, r, done = s1, r1, d1
             else:
@@ -507,6 +526,11 @@ class THTS:
             h.append(r + gamma * value)
             asolved.append(False)
         self._set_expanded(node, kept, h, asolved)
+
+    def _horizon(self, steps: int) -> float:
+        """The discounted number of steps in `steps`."""
+        g = self.gamma
+        return float(steps) if g == 1.0 else (1.0 - g**steps) / (1.0 - g)
 
     def _set_expanded(
         self, node: TNode, kept: list[Any], h: list[float], asolved: list[bool]
