@@ -277,9 +277,7 @@ class THTS:
     def _tuple(self, row: int) -> ActT:
         t = self._tuples.get(row)
         if t is None:
-            t = self._tuples[row] = self.fast.encode_actions(
-                self.chooser.lib.take(np.array([row]))
-            )
+            t = self._tuples[row] = self.fast.encode_actions(self.chooser.lib.take(np.array([row])))
         return t
 
     def _candidates(self, state: StateT) -> list[int]:
@@ -504,7 +502,7 @@ class THTS:
                 self._set_expanded(node, kept, ids, [False] * len(kept))
                 turn.ids_leaves += 1
                 return
-        for row, act, det, s1, r1, d1, same_r in kept:
+        for _row, act, det, s1, r1, d1, same_r in kept:
             if node.steps == 1 or (det and d1):
                 h.append(r1)
                 asolved.append(same_r if not det else True)
