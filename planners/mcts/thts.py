@@ -493,7 +493,10 @@ class THTS:
         late = False
         if self.ids_depth and node.steps > 1:
             try:
-                ids = self._ids_values(node, kept)
+                # (the root's IDS always finishes: valuing its actions by their
+                # reward alone lost AcademicAdvising, where every course costs
+                # now and pays only at graduation)
+                ids = self._ids_values(node, kept, check=not root)
             except _Stop:
                 if not root:
                     raise
@@ -553,7 +556,7 @@ class THTS:
 
     # -- IDS on the most-likely determinisation ---------------------------------
 
-    def _ids_values(self, node: TNode, kept: list[Any]) -> list[float] | None:
+    def _ids_values(self, node: TNode, kept: list[Any], check: bool = True) -> list[float] | None:
         """PROST's IDS estimate of each kept action (None where it values
         them all alike: roll-outs then): its reward plus the depth-(d-1)
         value of its successor on the most-likely determinisation, scaled to
@@ -563,7 +566,8 @@ class THTS:
         out = []
         step = self.fast.step
         for _, act, _, _, _, _, _ in kept:
-            self._check()
+            if check:
+                self._check()
             nxt, r, done = step(node.state, act, self.likely)  # type: ignore[arg-type]
             self.turn.sim_steps += 1
             v = r if done or d <= 1 else r + self.gamma * self._ids(nxt, d - 1)
