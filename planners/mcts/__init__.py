@@ -1,6 +1,13 @@
-"""`mcts`: UCT-style trial-based tree search over the batched simulator.
+"""`mcts`: trial-based tree search (THTS, as PROST's).
 
-Theory of operation. Every turn the planner grows a search graph from the
+Two engines (option `engine`). `thts`, the default, searches one trial at
+a time on the grounded one-state step of `ippc.rddl.sim.scalar`, with
+probed equivalent-action pruning, an exact last step, solved labelling and
+IDS on the most-likely determinisation: its module `thts` is its theory of
+operation. Where that step cannot be written (`ScalarUnsupported`, a POMDP)
+a session runs `wave`, described below.
+
+Theory of operation of `wave`. Every turn the planner grows a search graph from the
 current state with the compiled simulator as its model, in the spirit of
 PROST's trial-based heuristic tree search (THTS):
 
@@ -73,8 +80,9 @@ approximation).
 The package, one job per module: `options` (the options and their typed
 `Settings`), `stats` (the counters), `tree` (nodes, UCB1, backups, the
 final choice), `actions` (the action library, candidates, rollout actions),
-`rollouts` (expanding leaves with batched rollouts) and `planner` (the
-session, the turn, the roots and the waves of trials).
+`rollouts` (expanding leaves with batched rollouts), `thts` (the
+single-state engine) and `planner` (the session, the turn, the roots and
+the waves of trials).
 """
 
 from __future__ import annotations

@@ -17,7 +17,7 @@ ENGINES = ("thts", "wave")
 OPTIONS: dict[str, str] = {
     "engine": "the search: thts (one trial at a time on the grounded one-state step, "
     "rddl.sim.scalar; where that step cannot be written, or for a POMDP, wave instead) or "
-    "wave (waves of trials over the batched simulator) (default wave)",
+    "wave (waves of trials over the batched simulator) (default thts)",
     "time_per_step": "seconds of search per turn (default: the client's deadline, the "
     "session's remaining time spread over its remaining steps)",
     "iterations": "search exactly this many waves (engine wave) or trials (engine thts) per "
@@ -73,7 +73,7 @@ OPTIONS: dict[str, str] = {
 class Settings:
     """Every option of `mcts`, typed, with its default."""
 
-    engine: str = "wave"
+    engine: str = "thts"
     time_per_step: float | None = None
     iterations: int | None = None
     exploration: float = 2.0
@@ -124,7 +124,7 @@ def read_settings(planner: Planner) -> Settings:
         raise planner._option_error(
             "rollout_policy", policy, "one of " + ", ".join(ROLLOUT_POLICIES)
         )
-    engine = (planner.str_option("engine", "wave") or "wave").strip().lower()
+    engine = (planner.str_option("engine", "thts") or "thts").strip().lower()
     if engine not in ENGINES:
         raise planner._option_error("engine", engine, "one of " + ", ".join(ENGINES))
     # the measured best of each engine: IDS for thts (as PROST's), roll-outs for wave

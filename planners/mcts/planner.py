@@ -37,7 +37,8 @@ Array = np.ndarray
 
 
 class MCTSPlanner(Planner):
-    """UCT over the batched simulator (see the package docstring)."""
+    """Trial-based tree search: the `thts` engine on the scalar step, else
+    the `wave` search over the batched simulator (see the package docstring)."""
 
     name: ClassVar[str] = "mcts"
     options: ClassVar[dict[str, str]] = OPTIONS

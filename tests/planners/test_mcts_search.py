@@ -27,7 +27,7 @@ def models() -> dict[str, Model]:
 
 def planner_on(model: Model, **options: str) -> tuple[MCTSPlanner, Simulator]:
     sim = Simulator(model)
-    planner = MCTSPlanner(**options)
+    planner = MCTSPlanner(**{"engine": "wave", **options})
     planner.start_session(SessionInfo(model.name, model, sim, rounds=1, time_allowed=60.0, seed=1))
     planner.start_round(1)
     return planner, sim
