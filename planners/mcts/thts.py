@@ -82,36 +82,28 @@ StateT = tuple[Any, ...]
 ActT = tuple[Any, ...]
 
 
-class _U:
-    """A uniform draw that records the probability it is compared with."""
+class _Draw:
+    """A fixed draw that records what the step does with it: a uniform the
+    probability it is compared with (`u < p`), a normal the factor it is
+    scaled by (kept apart from probabilities as that factor plus 2)."""
 
-    __slots__ = ("u", "log")
+    __slots__ = ("v", "log")
 
-    def __init__(self, u: float, record: list[float]):
-        self.u = u
+    def __init__(self, v: float, record: list[float]):
+        self.v = v
         self.log = record
 
     def __lt__(self, p: float) -> bool:
         self.log.append(float(p))
-        return self.u < p
+        return self.v < p
 
     def __gt__(self, p: float) -> bool:  # (p < u, written the other way round)
         self.log.append(float(p))
-        return self.u > p
-
-
-class _Z:
-    """A standard normal draw that records the factor it is scaled by."""
-
-    __slots__ = ("z", "log")
-
-    def __init__(self, z: float, record: list[float]):
-        self.z = z
-        self.log = record
+        return self.v > p
 
     def __rmul__(self, x: float) -> float:
-        self.log.append(float(x) + 2.0)  # (kept apart from probabilities in [0, 1])
-        return x * self.z
+        self.log.append(float(x) + 2.0)
+        return x * self.v
 
     __mul__ = __rmul__
 
@@ -126,50 +118,49 @@ class _Draws:
         return self.items
 
 
-class _Probe:
-    """A draw generator for `ScalarStep.step` with fixed draws that records
-    every probability and standard deviation the step uses (`log`)."""
+class _Fixed:
+    """A stand-in for the numpy generator `ScalarStep.step` draws from:
+    the same draws at every call (made once, as many as asked for)."""
+
+    def __init__(
+        self, uniforms: Callable[[int], list[Any]], normals: Callable[[int], list[Any]]
+    ) -> None:
+        self._u = _Draws([])
+        self._z = _Draws([])
+        self._more = (uniforms, normals)
+
+    def random(self, n: int) -> _Draws:
+        return self._grow(self._u, n, self._more[0])
+
+    def standard_normal(self, n: int) -> _Draws:
+        return self._grow(self._z, n, self._more[1])
+
+    @staticmethod
+    def _grow(draws: _Draws, n: int, more: Callable[[int], list[Any]]) -> _Draws:
+        if len(draws.items) < n:
+            draws.items.extend(more(n - len(draws.items)))
+        return draws
+
+
+class _Probe(_Fixed):
+    """Fixed draws from a seeded generator that record every probability
+    and standard deviation the step uses (`log`)."""
 
     def __init__(self, rng: np.random.Generator):
         self.log: list[float] = []
-        self._rng = rng
-        self._u = _Draws([])
-        self._z = _Draws([])
-
-    def random(self, n: int) -> _Draws:
-        items = self._u.items
-        if len(items) < n:  # (drawn once, from the seeded generator)
-            items.extend(_U(u, self.log) for u in self._rng.random(n - len(items)).tolist())
-        return self._u
-
-    def standard_normal(self, n: int) -> _Draws:
-        items = self._z.items
-        if len(items) < n:
-            items.extend(
-                _Z(z, self.log) for z in self._rng.standard_normal(n - len(items)).tolist()
-            )
-        return self._z
+        log_ = self.log
+        super().__init__(
+            lambda k: [_Draw(u, log_) for u in rng.random(k).tolist()],
+            lambda k: [_Draw(z, log_) for z in rng.standard_normal(k).tolist()],
+        )
 
 
-class _Likely:
+def _likely() -> _Fixed:
     """The draws of the most-likely determinisation: every uniform 0.5 (a
     Bernoulli is true exactly when its probability is above a half; a
     Discrete takes the case where its cumulative probability passes a half,
     its median) and every normal 0 (its mean)."""
-
-    def __init__(self) -> None:
-        self._u = _Draws([])
-        self._z = _Draws([])
-
-    def random(self, n: int) -> _Draws:
-        if len(self._u.items) < n:
-            self._u.items.extend([0.5] * (n - len(self._u.items)))
-        return self._u
-
-    def standard_normal(self, n: int) -> _Draws:
-        if len(self._z.items) < n:
-            self._z.items.extend([0.0] * (n - len(self._z.items)))
-        return self._z
+    return _Fixed(lambda k: [0.5] * k, lambda k: [0.0] * k)
 
 
 def _deterministic(record: list[float]) -> bool:
@@ -264,7 +255,7 @@ class THTS:
         self.pool: list[ActT] | None = (
             None if pool is None else [self._tuple(int(r)) for r in pool.tolist()]
         )
-        self.likely = _Likely()
+        self.likely = _likely()
         self.ids_depth = 0  # 0: no IDS (roll-outs); set by `learn_ids`
         self._ids_cache: dict[tuple[int, StateT], float] = {}
         self.deadline: float | None = None
@@ -379,17 +370,24 @@ class THTS:
             node.visits += 1
             outs = node.outs[a]
             if len(outs) <= limit:
-                tot = 0.0
-                for o in outs.values():
-                    c = o[2] + gamma * o[1] * o[0].value
-                    o[3] = c
-                    tot += c
-                node.tot[a] = tot
+                node.tot[a] = self._total(outs)
             else:
                 c = out[2] + gamma * out[1] * child.value
                 node.tot[a] += c - out[3]
                 out[3] = c
             self._update(node, a, out)
+
+    def _total(self, outs: dict[StateT, list[Any]]) -> float:
+        """An action's outcomes' rewards and current values, weighted by
+        their counts (each outcome keeps its share for the incremental
+        backup)."""
+        gamma = self.gamma
+        tot = 0.0
+        for o in outs.values():
+            c = o[2] + gamma * o[1] * o[0].value
+            o[3] = c
+            tot += c
+        return tot
 
     def _update(self, node: TNode, a: int, out: list[Any] | None) -> None:
         """The action's value from its statistics, then the node's."""
@@ -406,16 +404,10 @@ class THTS:
     def refresh(self, node: TNode) -> None:
         """Every action of `node` from its outcomes' current values (before
         the choice: a value below may have changed through another path)."""
-        gamma = self.gamma
         for a, outs in enumerate(node.outs):
             if node.asolved[a] or not outs:
                 continue
-            tot = 0.0
-            for o in outs.values():
-                c = o[2] + gamma * o[1] * o[0].value
-                o[3] = c
-                tot += c
-            node.tot[a] = tot
+            node.tot[a] = self._total(outs)
             self._update(node, a, next(iter(outs.values())) if node.det[a] else None)
 
     def _select(self, node: TNode) -> int:

@@ -14,18 +14,14 @@ from ippc.planners import SessionInfo
 from ippc.planners.exact import solve
 from ippc.planners.mcts import MCTSPlanner
 from ippc.planners.mcts.thts import TNode
-from ippc.rddl import Model, load, load_model, load_pair
+from ippc.rddl import Model, load_model, load_pair
 from ippc.rddl.simulator import Simulator, State
 
 from ..conftest import ippc_files
+from . import test_mcts_search
 from .test_mcts import observe
 
-TINY = Path(__file__).resolve().parent / "tiny_domains"
-
-
-@pytest.fixture(scope="module")
-def models() -> dict[str, Model]:
-    return load(TINY)
+models = test_mcts_search.models  # the tiny domains (a fixture)
 
 
 def planner_on(model: Model, **options: str) -> tuple[MCTSPlanner, Simulator]:
@@ -154,9 +150,7 @@ def test_equivalent_actions_are_pruned(tmp_path: Path) -> None:
     assert kept == sorted([(), one[0], ("press-c = true",), ("press-d = true",)])
 
 
-def test_a_model_without_a_scalar_step_falls_back_to_the_wave_search(
-    models: dict[str, Model],
-) -> None:
+def test_a_model_without_a_scalar_step_falls_back_to_the_wave_search() -> None:
     """A POMDP has no scalar step (`ScalarUnsupported`): `engine=thts`
     runs the wave search there, and still plays."""
     model = load_pair(*ippc_files("IPPC2011", "SysAdmin", 1))  # an MDP: thts
