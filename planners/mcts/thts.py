@@ -47,8 +47,10 @@ One trial at a time, as in Keller & Helmert 2013 and PROST:
   (a decaying maximum), checked between trials and between the actions of
   an expansion, so a turn ends within about one trial's time of its
   budget; with `iterations` exactly that many trials run (a seed then gives
-  the same search on any machine). The root's own expansion always
-  completes.
+  the same search on any machine). The root is always expanded: its IDS
+  finishes, its probing stops at the deadline with the actions probed so
+  far, and its actions not valued by then get their reward times the steps
+  left.
 
 The action draws of roll-outs and UCB1's tie-breaks use a Python
 `random.Random` seeded from the planner's generator, and the step's draws
@@ -472,7 +474,14 @@ class THTS:
         rows = self._candidates(state)
         seen: set[tuple[Any, ...]] = set()
         kept: list[tuple[int, ActT, bool, StateT, float, bool, bool]] = []
-        for row in rows:
+        for i, row in enumerate(rows):
+            if i & 31 == 31 and self.deadline is not None and time.monotonic() >= self.deadline:
+                # (hundreds of candidates: TriangleTireworld #5 has 813) a node
+                # other than the root is left for a later trial; the root keeps
+                # the actions probed so far (noop first)
+                if not root:
+                    raise _Stop
+                break
             act = self._tuple(row)
             det, sig, s1, r1, d1, same_r = self._probe(state, act)
             if sig in seen:
