@@ -120,6 +120,10 @@ def _consistent(row: RunRow, number: int) -> None:
     assert row.planning_s > 0
 
 
+# alone: replan plans within the step's deadline, and at load 8-10 under -n 2 a
+# starved planning step left experiment 3's run without a delivery in 20 steps
+# (seen by three runs of the fast suite; the same runs pass with the machine to themselves)
+@pytest.mark.alone
 @pytest.mark.parametrize("number", [1, 2, 3, 4])
 def test_replan_short_run_of_each_experiment(number: int) -> None:
     row = run_one(EXPERIMENTS[number], APPROACHES["replan"], 0)
