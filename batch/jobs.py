@@ -140,10 +140,13 @@ class ProgressQueue:
         self._last = -math.inf
 
     def __call__(self, key: str, round_num: int, turn: int | None) -> None:
-        now = time.monotonic()
-        if turn is not None and now - self._last < self.period:
-            return
-        self._last = now
+        if turn is not None:
+            # a round's start is always told, and does not hold back the turns after it:
+            # a job whose rounds last less than `period` still shows its turns
+            now = time.monotonic()
+            if now - self._last < self.period:
+                return
+            self._last = now
         try:
             self.queue.put_nowait((key, round_num, turn))
         except Exception:  # noqa: BLE001 - progress is best effort
