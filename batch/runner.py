@@ -241,6 +241,7 @@ def _run_lock(db: str | Path) -> Iterator[None]:
         yield
         return
     path = Path(f"{db}.lock")
+    path.parent.mkdir(parents=True, exist_ok=True)  # as the store does for the database
     fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
     try:
         try:
