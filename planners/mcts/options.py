@@ -13,11 +13,17 @@ from ..base import Planner
 ROLLOUT_POLICIES = ("random", "noop", "best")
 HEURISTICS = ("ids", "rollout")
 ENGINES = ("thts", "wave")
+COMPILED = ("auto", "yes", "no")
 
 OPTIONS: dict[str, str] = {
     "engine": "the search: thts (one trial at a time on the grounded one-state step, "
     "rddl.sim.scalar; where that step cannot be written, or for a POMDP, wave instead) or "
     "wave (waves of trials over the batched simulator) (default thts)",
+    "compiled": "engine thts: the step and the search's inner loops (probing, IDS, "
+    "roll-outs) in C, built when the session starts with the system's C compiler ($CC, else "
+    "cc, gcc or clang; cached in $IPPC_CACHE, default ~/.cache/ippc): auto (when a compiler "
+    "is found and the instance translates, else the Python step), yes (the session fails "
+    "otherwise) or no (default auto)",
     "time_per_step": "seconds of search per turn (default: the client's deadline, the "
     "session's remaining time spread over its remaining steps)",
     "iterations": "search exactly this many waves (engine wave) or trials (engine thts) per "
@@ -74,6 +80,7 @@ class Settings:
     """Every option of `mcts`, typed, with its default."""
 
     engine: str = "thts"
+    compiled: str = "auto"
     time_per_step: float | None = None
     iterations: int | None = None
     exploration: float = 2.0
@@ -127,6 +134,12 @@ def read_settings(planner: Planner) -> Settings:
     engine = (planner.str_option("engine", "thts") or "thts").strip().lower()
     if engine not in ENGINES:
         raise planner._option_error("engine", engine, "one of " + ", ".join(ENGINES))
+    compiled = (planner.str_option("compiled", "auto") or "auto").strip().lower()
+    compiled = {"true": "yes", "1": "yes", "on": "yes", "false": "no", "0": "no", "off": "no"}.get(
+        compiled, compiled
+    )
+    if compiled not in COMPILED:
+        raise planner._option_error("compiled", compiled, "one of " + ", ".join(COMPILED))
     # the measured best of each engine: IDS for thts (as PROST's), roll-outs for wave
     default_h = "ids" if engine == "thts" else "rollout"
     heuristic = (planner.str_option("heuristic", default_h) or default_h).strip().lower()
@@ -134,6 +147,7 @@ def read_settings(planner: Planner) -> Settings:
         raise planner._option_error("heuristic", heuristic, "one of " + ", ".join(HEURISTICS))
     return Settings(
         engine=engine,
+        compiled=compiled,
         time_per_step=planner.float_option("time_per_step", None, minimum=0.0),
         iterations=planner.int_option("iterations", None, minimum=1),
         exploration=number("exploration", 2.0),

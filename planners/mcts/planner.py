@@ -18,6 +18,7 @@ from typing import ClassVar
 import numpy as np
 
 from ...rddl.model import Model
+from ...rddl.sim.cstep import CStep, CUnavailable
 from ...rddl.sim.scalar import ScalarStep, ScalarUnsupported
 from ...rddl.simulator import SimulationError, Simulator, State
 from ...rddl.wire import WireCodec, WireError
@@ -68,6 +69,8 @@ class MCTSPlanner(Planner):
         self._thts: THTS | None = None
         self.engine = "wave"
         """The search this session runs: thts, or wave (asked for, or the fallback)."""
+        self.compiled = False
+        """Whether the thts engine runs its step in C this session (option compiled)."""
 
     @property
     def library(self) -> ActionLibrary | None:
@@ -90,6 +93,7 @@ class MCTSPlanner(Planner):
         self._thts = None
         self._expander = None
         self.engine = "wave"
+        self.compiled = False
         scalar = None
         if self.settings.engine == "thts":
             try:
@@ -104,10 +108,11 @@ class MCTSPlanner(Planner):
             self._thts = self._start_thts(session, scalar, seed)
             self.engine = "thts"
         log.info(
-            "mcts: %s, %s, engine %s, seed %s",
+            "mcts: %s, %s, engine %s%s, seed %s",
             session.instance,
             self._chooser.describe(),
             self.engine,
+            " (compiled step)" if self.compiled else "",
             seed,
         )
 
@@ -134,7 +139,16 @@ class MCTSPlanner(Planner):
             sim, dataclasses.replace(st, max_actions=8 * st.max_actions), self.rng
         )
         self._chooser = chooser
-        search = THTS(sim, scalar, chooser, st, self.rng, self._discount(), locks)
+        cstep = None
+        if st.compiled != "no":
+            try:
+                cstep = CStep(scalar)
+            except CUnavailable as err:
+                if st.compiled == "yes":
+                    raise PlannerError(f"mcts: compiled=yes, but no C step: {err}") from None
+                log.info("mcts: %s: the Python step (%s)", session.instance, err)
+        self.compiled = cstep is not None
+        search = THTS(sim, scalar, chooser, st, self.rng, self._discount(), locks, cstep)
         if st.heuristic == "ids":
             fixed = st.ids_depth or (5 if st.iterations is not None else 0)
             if fixed:

@@ -62,6 +62,7 @@ Imports the scalar step, the tree-independent parts of the package
 
 from __future__ import annotations
 
+import itertools
 import logging
 import math
 import random
@@ -71,6 +72,7 @@ from typing import Any
 
 import numpy as np
 
+from ...rddl.sim.cstep import CStep
 from ...rddl.sim.scalar import ScalarStep
 from ...rddl.simulator import Simulator
 from .actions import ActionChooser, state_dependent
@@ -82,6 +84,8 @@ log = logging.getLogger(__name__)
 
 StateT = tuple[Any, ...]
 ActT = tuple[Any, ...]
+
+_TOKENS = itertools.count(1)  # names each search's candidates for the C IDS cache
 
 
 class _Draw:
@@ -235,6 +239,7 @@ class THTS:
         rng: np.random.Generator,
         gamma: float,
         locks: RewardLocks | None = None,
+        cstep: CStep | None = None,
     ) -> None:
         self.sim = sim
         self.fast = scalar
@@ -264,6 +269,23 @@ class THTS:
         self.piece = 0.0  # the slowest recent trial (decaying)
         self.turn = SearchStats()
         self.locked = 0
+        self.c = cstep
+        if cstep is not None:
+            # the C step's own generator, and the probes' two fixed draw vectors
+            cstep.rng.value = int(rng.integers(0, 2**63 - 1))
+            self._cdraws = (
+                *cstep.draw_block(
+                    probe_rng.random(cstep.nu).tolist(),
+                    probe_rng.standard_normal(cstep.nz).tolist(),
+                ),
+                *cstep.draw_block(
+                    probe_rng.random(cstep.nu).tolist(),
+                    probe_rng.standard_normal(cstep.nz).tolist(),
+                ),
+            )
+            self._token = next(_TOKENS)
+            self._cpool = None if not self.pool else cstep.block(self.pool)
+            self._cstatic: Any = None  # the static candidates as one C block
 
     # -- actions -------------------------------------------------------------
 
@@ -349,12 +371,16 @@ class THTS:
         step = self.fast.step
         rng = self.rng
         turn = self.turn
+        sample = None if self.c is None else self.c.sample
         while not node.solved:
             if not node.expanded:
                 self._expand(node)
                 break
             a = self._select(node)
-            nxt, r, done = step(node.state, node.acts[a], rng)
+            if sample is not None:
+                nxt, r, done = sample(node.state, node.acts[a])
+            else:
+                nxt, r, done = step(node.state, node.acts[a], rng)
             turn.sim_steps += 1
             outs = node.outs[a]
             out = outs.get(nxt)
@@ -474,6 +500,9 @@ class THTS:
         rows = self._candidates(state)
         seen: set[tuple[Any, ...]] = set()
         kept: list[tuple[int, ActT, bool, StateT, float, bool, bool]] = []
+        if self.c is not None:
+            kept = self._cprobe(state, rows)
+            rows = []
         for i, row in enumerate(rows):
             if i & 31 == 31 and self.deadline is not None and time.monotonic() >= self.deadline:
                 # (hundreds of candidates: TriangleTireworld #5 has 813) a node
@@ -521,6 +550,9 @@ class THTS:
                 continue
             if det:
                 nxt, r, done = s1, r1, d1
+            elif self.c is not None:
+                nxt, r, done = self.c.sample(state, act)
+                turn.sim_steps += 1
             else:
                 nxt, r, done = self.fast.step(state, act, self.rng)
                 turn.sim_steps += 1
@@ -528,6 +560,28 @@ class THTS:
             h.append(r + gamma * value)
             asolved.append(False)
         self._set_expanded(node, kept, h, asolved)
+
+    def _cprobe(
+        self, state: StateT, rows: list[int]
+    ) -> list[tuple[int, ActT, bool, StateT, float, bool, bool]]:
+        """`_probe` of every candidate at once in C, the equivalent ones
+        dropped (the same test: the same probabilities at every draw site
+        reached, the same successors, rewards and ends under both probes)."""
+        c = self.c
+        assert c is not None
+        acts = [self._tuple(r) for r in rows]
+        if self._static and rows is self._static_rows:
+            if self._cstatic is None:
+                self._cstatic = c.block(acts)
+            block = self._cstatic
+        else:
+            block = c.block(acts)
+        probed = c.probe(state, block, len(acts), self._cdraws)
+        # (a deterministic action is stepped once, the others twice)
+        self.turn.sim_steps += len(acts) + sum(1 for p in probed if not p[1])
+        return [
+            (rows[i], acts[i], det, s1, r1, d1, same_r) for i, det, s1, r1, d1, same_r in probed
+        ]
 
     def _horizon(self, steps: int) -> float:
         """The discounted number of steps in `steps`."""
@@ -566,17 +620,39 @@ class THTS:
         d = min(self.ids_depth, steps)
         out = []
         step = self.fast.step
-        for _, act, _, _, _, _, _ in kept:
+        state = node.state
+        if self.c is not None and self._static:
             if check:
                 self._check()
-            nxt, r, done = step(node.state, act, self.likely)  # type: ignore[arg-type]
-            self.turn.sim_steps += 1
-            v = r if done or d <= 1 else r + self.gamma * self._ids(nxt, d - 1)
-            out.append(v)
+            out = self._cids(state, [k[1] for k in kept], d)
+        else:
+            if self.c is not None:
+                state = self.c.typed(state)  # the Python step indexes tables by values
+            for _, act, _, _, _, _, _ in kept:
+                if check:
+                    self._check()
+                nxt, r, done = step(state, act, self.likely)  # type: ignore[arg-type]
+                self.turn.sim_steps += 1
+                v = r if done or d <= 1 else r + self.gamma * self._ids(nxt, d - 1)
+                out.append(v)
         if max(out) == min(out) and len(out) > 1:
             return None
         scale = self.st.heuristic_weight * (steps / d if self.gamma == 1.0 else 1.0)
         return [v * scale for v in out]
+
+    def _cids(self, state: StateT, acts: list[ActT], depth: int) -> list[float]:
+        """`acts`' IDS values in C (static candidates only)."""
+        c = self.c
+        assert c is not None
+        if self._cstatic is None:
+            rows = self._candidates(state)
+            self._cstatic = c.block([self._tuple(r) for r in rows])
+        n = len(self._static_rows or [])
+        values, made = c.ids_values(
+            state, c.block(acts), len(acts), self._cstatic, n, depth, self.gamma, self._token
+        )
+        self.turn.sim_steps += made
+        return values
 
     def _ids(self, state: StateT, depth: int) -> float:
         """The best depth-`depth` return from `state` on the determinisation
@@ -616,16 +692,24 @@ class THTS:
         for d in range(2, min(15, steps) + 1):
             self._ids_cache.clear()
             t0 = time.process_time()
-            for s in states:
-                for row in self._candidates(s):
-                    nxt, r, done = self.fast.step(s, self._tuple(row), self.likely)  # type: ignore[arg-type]
-                    if not done:
-                        self._ids(nxt, d - 1)
+            if self.c is not None and self._static:
+                self.c.ids_clear()
+                for s in states:
+                    self._cids(s, [self._tuple(r) for r in self._candidates(s)], d)
+            else:
+                for s in states:
+                    for row in self._candidates(s):
+                        act = self._tuple(row)
+                        nxt, r, done = self.fast.step(s, act, self.likely)  # type: ignore[arg-type]
+                        if not done:
+                            self._ids(nxt, d - 1)
             took = (time.process_time() - t0) / max(1, len(states))
             if took > timeout:
                 break
             depth = d
         self._ids_cache.clear()
+        if self.c is not None:
+            self.c.ids_clear()
         self.ids_depth = depth
         return depth
 
@@ -644,7 +728,10 @@ class THTS:
                 self._lock_cache[key] = kind
         if kind is None:
             return False
-        _, r, _ = self.fast.step(node.state, self.fast.noop, self.rng)
+        if self.c is not None:
+            _, r, _ = self.c.sample(node.state, self.fast.noop)
+        else:
+            _, r, _ = self.fast.step(node.state, self.fast.noop, self.rng)
         g = self.gamma
         value = r * node.steps if g == 1.0 else r * (1.0 - g**node.steps) / (1.0 - g)
         node.rows = [0]
@@ -676,6 +763,14 @@ class THTS:
     def _walk(self, state: StateT, steps: int, pool: list[ActT] | None) -> float:
         depth = self.st.rollout_depth
         n = steps if depth == 0 else min(depth, steps)
+        g = self.gamma
+        if self.c is not None:
+            block = None if pool is None or not pool else self._cpool
+            total, taken, ended = self.c.walk(state, n, block, len(pool or ()) if block else 0, g)
+            self.turn.sim_steps += taken
+            if not ended and taken < steps and taken > 0 and self.st.extrapolate:
+                return self._extrapolate(total, taken, steps)
+            return total
         step = self.fast.step
         rng = self.rng
         noop = self.fast.noop
@@ -689,7 +784,6 @@ class THTS:
 
         total = 0.0
         disc = 1.0
-        g = self.gamma
         taken = 0
         for _ in range(n):
             act = noop if choose is None else choose()
@@ -702,10 +796,15 @@ class THTS:
                 return total
         self.turn.sim_steps += taken
         if taken < steps and taken > 0 and self.st.extrapolate:
-            # the mean discounted reward a step over all the steps left
-            if g == 1.0:
-                return total * steps / taken
-            full = (1.0 - g**steps) / (1.0 - g)
-            part = (1.0 - g**taken) / (1.0 - g)
-            return total * full / part
+            return self._extrapolate(total, taken, steps)
         return total
+
+    def _extrapolate(self, total: float, taken: int, steps: int) -> float:
+        """A roll-out's return over `taken` steps as its mean discounted
+        reward a step over all the `steps` left."""
+        g = self.gamma
+        if g == 1.0:
+            return total * steps / taken
+        full = (1.0 - g**steps) / (1.0 - g)
+        part = (1.0 - g**taken) / (1.0 - g)
+        return total * full / part

@@ -666,6 +666,10 @@ class ScalarStep:
         self.state_keys = writer.state_keys
         self.action_keys = writer.action_keys
         self.draws = writer.n_uniforms + writer.n_normals
+        self.n_uniforms = writer.n_uniforms
+        self.n_normals = writer.n_normals
+        self.tables = dict(writer.tables)
+        """The lookup tables the source reads by name (enum values as numbers)."""
         ns: dict[str, Any] = dict(_HELPERS)
         ns.update(writer.tables)
         code = compile(self.source, f"<rddl {sim.model.name}: _scalar_step>", "exec")
