@@ -24,6 +24,7 @@ from ...rddl.simulator import SimulationError, Simulator, State
 from ...rddl.wire import WireCodec, WireError
 from ..base import Observation, Planner, PlannerError, SessionInfo, WireFluent
 from .actions import ActionChooser, ActionLibrary, _row_keys
+from .ctree import TREE_C, attach
 from .deadline import Deadline
 from .heuristic import IDS, RewardLocks, training_states
 from .options import OPTIONS, Settings, read_settings
@@ -142,7 +143,7 @@ class MCTSPlanner(Planner):
         cstep = None
         if st.compiled != "no":
             try:
-                cstep = CStep(scalar)
+                cstep = CStep(scalar, extra=TREE_C)
             except CUnavailable as err:
                 if st.compiled == "yes":
                     raise PlannerError(f"mcts: compiled=yes, but no C step: {err}") from None
@@ -159,6 +160,8 @@ class MCTSPlanner(Planner):
                 states = [scalar.encode_state(train, i) for i in range(min(train.batch, 16))]
                 depth = search.learn_ids(states, session.model.horizon or 40, st.ids_timeout)
                 log.info("mcts: %s: IDS depth %d", session.instance, depth)
+        if attach(search):
+            log.info("mcts: %s: the trials in C", session.instance)
         return search
 
     def _heuristic(self, session: SessionInfo) -> tuple[IDS | None, RewardLocks | None]:

@@ -273,19 +273,21 @@ class THTS:
         if cstep is not None:
             # the C step's own generator, and the probes' two fixed draw vectors
             cstep.rng.value = int(rng.integers(0, 2**63 - 1))
+            probe_draws = (
+                probe_rng.random(cstep.nu).tolist(),
+                probe_rng.standard_normal(cstep.nz).tolist(),
+                probe_rng.random(cstep.nu).tolist(),
+                probe_rng.standard_normal(cstep.nz).tolist(),
+            )
             self._cdraws = (
-                *cstep.draw_block(
-                    probe_rng.random(cstep.nu).tolist(),
-                    probe_rng.standard_normal(cstep.nz).tolist(),
-                ),
-                *cstep.draw_block(
-                    probe_rng.random(cstep.nu).tolist(),
-                    probe_rng.standard_normal(cstep.nz).tolist(),
-                ),
+                *cstep.draw_block(probe_draws[0], probe_draws[1]),
+                *cstep.draw_block(probe_draws[2], probe_draws[3]),
             )
             self._token = next(_TOKENS)
             self._cpool = None if not self.pool else cstep.block(self.pool)
             self._cstatic: Any = None  # the static candidates as one C block
+            self._probe_draws = probe_draws
+        self.tree: Any = None  # the trials in C (`ctree.attach`)
 
     # -- actions -------------------------------------------------------------
 
@@ -307,10 +309,14 @@ class THTS:
 
     def start_round(self) -> None:
         self.table = {}
+        if self.tree is not None:
+            self.tree.start_round()
 
     def root(self, state: StateT, steps: int) -> TNode:
         """The node of the observed state (the table's, with what was
         searched below it, else a new one); deeper buckets are dropped."""
+        if self.tree is not None:
+            return self.tree.root(state, steps)  # type: ignore[no-any-return]
         for k in [k for k in self.table if k > steps]:
             del self.table[k]
         if sum(len(b) for b in self.table.values()) > self.st.max_nodes:
@@ -330,6 +336,9 @@ class THTS:
         self, root: TNode, deadline: float | None, iterations: int | None, turn: SearchStats
     ) -> None:
         """Trials from `root` until the deadline (or exactly `iterations`)."""
+        if self.tree is not None:
+            self.tree.search(root, deadline, iterations, turn)
+            return
         self.turn = turn
         self.deadline = deadline
         if not root.expanded and not root.solved:

@@ -618,8 +618,9 @@ def _cache_dir() -> Path:
         return folder
 
 
-def c_source(scalar: ScalarStep) -> str:
-    """The C text of `scalar`'s step and the kernels (raises `CUnavailable`)."""
+def c_source(scalar: ScalarStep, extra: str = "") -> str:
+    """The C text of `scalar`'s step and the kernels, then `extra` (C text
+    that may call them; raises `CUnavailable`)."""
     tr = _Translator(scalar)
     body = tr.function()
     ns, na = len(scalar.state_keys), len(scalar.action_keys)
@@ -635,7 +636,7 @@ def c_source(scalar: ScalarStep) -> str:
         "                 double *N, double *R, double *D, double *L) {",
         "    (void)S; (void)A; (void)U; (void)Z; (void)L; *D = 0.0; *R = 0.0;",
     ]
-    return "\n".join([*head, body, "}", _KERNELS])
+    return "\n".join([*head, body, "}", _KERNELS, extra])
 
 
 def _build(source: str) -> Path:
@@ -685,9 +686,9 @@ class CStep:
     """`scalar`'s step in C, with the kernels (see the module docstring).
     Raises `CUnavailable` when it cannot be built."""
 
-    def __init__(self, scalar: ScalarStep, seed: int = 0):
+    def __init__(self, scalar: ScalarStep, seed: int = 0, extra: str = ""):
         self.scalar = scalar
-        self.source = c_source(scalar)
+        self.source = c_source(scalar, extra)
         self.path = _build(self.source)
         try:
             lib = ctypes.CDLL(str(self.path))

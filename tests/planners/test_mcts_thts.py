@@ -29,13 +29,24 @@ def planner_on(model: Model, **options: str) -> tuple[MCTSPlanner, Simulator]:
     planner = MCTSPlanner(engine="thts", **options)
     planner.start_session(SessionInfo(model.name, model, sim, rounds=1, time_allowed=60.0, seed=1))
     planner.start_round(1)
+    if options.get("compiled") == "yes":  # the C tree where it fits (these domains)
+        assert planner._thts is not None and planner._thts.tree is not None
     return planner, sim
 
 
 def root_of(planner: MCTSPlanner, state: State, steps: int) -> TNode:
+    """The node of `state` after a turn: the Python tree's, or the view of
+    the C tree's (`compiled=yes`)."""
     search = planner._thts
     assert search is not None
-    return search.table[steps][search.fast.encode_state(state)]
+    key = search.fast.encode_state(state)
+    if search.tree is not None:
+        return search.root(key, steps)
+    return search.table[steps][key]
+
+
+# the Python tree, and the trials in C (planners/mcts/ctree.py)
+COMPILED = pytest.mark.parametrize("compiled", ["no", "yes"])
 
 
 def names(planner: MCTSPlanner, sim: Simulator, row: int) -> list[str]:
@@ -45,8 +56,9 @@ def names(planner: MCTSPlanner, sim: Simulator, row: int) -> list[str]:
 
 @pytest.mark.parametrize("heuristic", ["rollout", "ids"])
 @pytest.mark.parametrize("steps_left", [1, 2, 3, 5])
+@COMPILED
 def test_root_values_converge_to_the_exact_q_values(
-    models: dict[str, Model], heuristic: str, steps_left: int
+    models: dict[str, Model], heuristic: str, compiled: str, steps_left: int
 ) -> None:
     """After enough trials every root action's value is near its exact
     expected return: the MaxMonteCarlo backups weight the sampled outcomes
@@ -54,7 +66,9 @@ def test_root_values_converge_to_the_exact_q_values(
     estimate (a roll-out, or IDS, which values `risky` too well)."""
     model = models["tiny_trap_inst"]
     exact = solve(model)
-    planner, sim = planner_on(model, heuristic=heuristic, iterations="3000", seed="2")
+    planner, sim = planner_on(
+        model, heuristic=heuristic, iterations="3000", seed="2", compiled=compiled
+    )
     assert planner.engine == "thts"
     state = sim.initial_state(1)
     planner.act(observe(sim, state, 11 - steps_left, steps_left))
@@ -74,11 +88,14 @@ def test_root_values_converge_to_the_exact_q_values(
     assert exact.action_index(chosen) == best
 
 
-def test_the_last_step_is_evaluated_exactly_and_solved(models: dict[str, Model]) -> None:
+@COMPILED
+def test_the_last_step_is_evaluated_exactly_and_solved(
+    models: dict[str, Model], compiled: str
+) -> None:
     """With one step left each action's value is its reward, without
     sampling, and the root is solved at once (no trial runs)."""
     model = models["tiny_trap_inst"]
-    planner, sim = planner_on(model, iterations="50")
+    planner, sim = planner_on(model, iterations="50", compiled=compiled)
     state = sim.initial_state(1)
     planner.act(observe(sim, state, 10, 1))
     root = root_of(planner, state, 1)
@@ -88,13 +105,16 @@ def test_the_last_step_is_evaluated_exactly_and_solved(models: dict[str, Model])
     assert planner.last_turn.trials == 0
 
 
-def test_a_deterministic_domain_is_solved_with_its_exact_value(models: dict[str, Model]) -> None:
+@COMPILED
+def test_a_deterministic_domain_is_solved_with_its_exact_value(
+    models: dict[str, Model], compiled: str
+) -> None:
     """tiny_delayed has no draws: every action is deterministic, so the
     search labels nodes solved from the last step up and ends the turn
     when the root is solved, with the optimal value (work three times: 7,
     twice in six steps)."""
     model = models["tiny_delayed_inst"]
-    planner, sim = planner_on(model, iterations="100000")
+    planner, sim = planner_on(model, iterations="100000", compiled=compiled)
     state = sim.initial_state(1)
     planner.act(observe(sim, state, 1, 6))
     root = root_of(planner, state, 6)
@@ -134,13 +154,14 @@ instance tiny_equivalent_inst {
 """
 
 
-def test_equivalent_actions_are_pruned(tmp_path: Path) -> None:
+@COMPILED
+def test_equivalent_actions_are_pruned(tmp_path: Path, compiled: str) -> None:
     """press-a and press-b have the same successor distribution and reward
     in every state: one is kept. press-c's probability differs (0.6, not
     0.7) and press-d's reward differs: both are kept, as is noop."""
     (tmp_path / "equivalent.rddl").write_text(EQUIVALENT)
     model = load_model(tmp_path / "equivalent.rddl")
-    planner, sim = planner_on(model, iterations="200", seed="3")
+    planner, sim = planner_on(model, iterations="200", seed="3", compiled=compiled)
     state = sim.initial_state(1)
     planner.act(observe(sim, state, 1, 5))
     root = root_of(planner, state, 5)
@@ -187,10 +208,12 @@ def _play(options: dict[str, str], turns: int) -> tuple[list[list[str]], list[tu
     return chosen, counts
 
 
-def test_the_same_seed_gives_the_same_search() -> None:
+@COMPILED
+def test_the_same_seed_gives_the_same_search(compiled: str) -> None:
     """With `iterations` and a seed, two sessions search alike (the same
     trials, expansions and simulated steps) and choose alike; another seed
     searches otherwise."""
-    first = _play({"iterations": "150", "seed": "11"}, 6)
-    assert _play({"iterations": "150", "seed": "11"}, 6) == first
-    assert _play({"iterations": "150", "seed": "12"}, 6)[1] != first[1]
+    options = {"iterations": "150", "seed": "11", "compiled": compiled}
+    first = _play(options, 6)
+    assert _play(options, 6) == first
+    assert _play({**options, "seed": "12"}, 6)[1] != first[1]

@@ -1,0 +1,608 @@
+"""`CTree`: the `thts` engine's trials in C, beside the compiled step.
+
+`thts.py`'s search spends, once the step runs in C (`rddl.sim.cstep`), most
+of a trial in Python: UCB1 over a node's actions, the outcome lookup, the
+backups. This module writes the same search in C (`TREE_C`, compiled into
+the instance's library with `CStep(..., extra=TREE_C)`) for the instances
+it fits: static candidate actions (legality does not depend on the state)
+and no reward-lock check. Everything else of `THTS` holds, node for node:
+
+* decision nodes in a transposition table keyed by (steps left, state),
+  kept across the turns of a round (cleared at a new round, or when it
+  holds more than `max_nodes` nodes);
+* expansion: every candidate probed under the two fixed draw vectors,
+  equivalent actions dropped, the exact last step; first values by IDS on
+  the most-likely determinisation (scaled as `THTS._ids_values`) or by
+  roll-outs (`rollout_policy`, `rollout_depth`, extrapolation);
+* trials: UCB1 over the unsolved actions, the exploration scaled by the
+  node's largest |Q|, ties broken at random; one sampled outcome per level;
+  MaxMonteCarlo backups with the partial Bellman backup for actions with at
+  most `bellman_outcomes` outcomes; solved labelling;
+* time: trials until the budget less the slowest recent trial (a decaying
+  maximum), or exactly `iterations` trials.
+
+The draws come from the step's splitmix64 generator, seeded from the
+planner's: a seed gives the same search. The tree lives in C memory owned
+by the `CTree` (freed with it); a library holds any number of trees, but
+the calls of one process are not meant to run from two threads at once
+(the IDS cache is the library's).
+
+Imports the compiled step (`rddl.sim.cstep`) and the node type of `thts`
+(whose fields the root's view fills).
+"""
+
+from __future__ import annotations
+
+import ctypes
+import time
+from typing import Any
+
+from ...rddl.sim.cstep import CStep
+from .options import Settings
+from .stats import SearchStats
+from .thts import THTS, TNode
+
+__all__ = ["TREE_C", "CRoot", "CTree", "attach"]
+
+TREE_C = r"""
+/* ---- THTS in C (planners/mcts/ctree.py) ---- */
+#include <time.h>
+typedef struct { long child; long count; double rsum, contrib; } t_out;
+typedef struct { int act; long n; double h, tot, q; int det, solved; int nout, cap; t_out *outs; } t_act;
+typedef struct { int steps; int done, expanded, solved; double value; int nacts; t_act *acts; long visits; uint64_t hash; } t_node;
+typedef struct {
+    int ncand; double *cands; int npool; double *pool; double noop[NA];
+    double U1[NU], Z1[NZ], U2[NU], Z2[NZ];
+    double gamma, w, expl, hweight;
+    int ids_depth, bellman, rollout_depth, policy, extrapolate; long max_nodes, token;
+    uint64_t rng;
+    t_node *nodes; double *states; long nn, capn;
+    long *table; long tcap;
+    long trials, leaves, ids_leaves, sim_steps;
+    double *pn1, *pr1, *kept; int *pd1, *pdet, *psame, *pkeep; double *hv;
+} tree;
+
+static double now_s(void) { struct timespec ts; clock_gettime(CLOCK_MONOTONIC, &ts); return ts.tv_sec + 1e-9 * ts.tv_nsec; }
+
+static void tree_clear(tree *t) {
+    for (long i = 0; i < t->nn; i++) {
+        t_node *nd = &t->nodes[i];
+        for (int a = 0; a < nd->nacts; a++) free(nd->acts[a].outs);
+        free(nd->acts);
+    }
+    t->nn = 0;
+    if (t->table) memset(t->table, 0, sizeof(long) * (size_t)t->tcap);
+}
+
+void ctree_free(void *p) {
+    tree *t = (tree *)p;
+    if (!t) return;
+    tree_clear(t);
+    free(t->nodes); free(t->states); free(t->table); free(t->cands); free(t->pool);
+    free(t->pn1); free(t->pr1); free(t->kept); free(t->pd1); free(t->pdet); free(t->psame);
+    free(t->pkeep); free(t->hv);
+    free(t);
+}
+
+/* params: gamma, init_weight, exploration, heuristic_weight;
+   iparams: ids_depth, bellman_outcomes, rollout_depth, policy (0 random, 1 noop, 2 best),
+   extrapolate, max_nodes, token */
+void *ctree_new(const double *cands, int ncand, const double *pool, int npool, const double *noop,
+                const double *probes, const double *params, const long *iparams, uint64_t seed) {
+    tree *t = (tree *)calloc(1, sizeof(tree));
+    if (!t) return 0;
+    int m = ncand > 0 ? ncand : 1;
+    t->ncand = ncand;
+    t->cands = (double *)malloc(sizeof(double) * NA * (size_t)m);
+    t->npool = npool;
+    t->pool = (double *)malloc(sizeof(double) * NA * (size_t)(npool > 0 ? npool : 1));
+    t->pn1 = (double *)malloc(sizeof(double) * NS * (size_t)m);
+    t->pr1 = (double *)malloc(sizeof(double) * (size_t)m);
+    t->kept = (double *)malloc(sizeof(double) * NA * (size_t)m);
+    t->hv = (double *)malloc(sizeof(double) * (size_t)m);
+    t->pd1 = (int *)malloc(sizeof(int) * (size_t)m); t->pdet = (int *)malloc(sizeof(int) * (size_t)m);
+    t->psame = (int *)malloc(sizeof(int) * (size_t)m); t->pkeep = (int *)malloc(sizeof(int) * (size_t)m);
+    t->tcap = 1 << 12;
+    t->table = (long *)calloc((size_t)t->tcap, sizeof(long));
+    if (!t->cands || !t->pool || !t->pn1 || !t->pr1 || !t->kept || !t->hv || !t->pd1 || !t->pdet
+        || !t->psame || !t->pkeep || !t->table) { ctree_free(t); return 0; }
+    if (ncand) memcpy(t->cands, cands, sizeof(double) * NA * (size_t)ncand);
+    if (npool) memcpy(t->pool, pool, sizeof(double) * NA * (size_t)npool);
+    memcpy(t->noop, noop, sizeof(double) * NA);
+    memcpy(t->U1, probes, sizeof(double) * NU); memcpy(t->Z1, probes + NU, sizeof(double) * NZ);
+    memcpy(t->U2, probes + NU + NZ, sizeof(double) * NU); memcpy(t->Z2, probes + 2 * NU + NZ, sizeof(double) * NZ);
+    t->gamma = params[0]; t->w = params[1]; t->expl = params[2]; t->hweight = params[3];
+    t->ids_depth = (int)iparams[0]; t->bellman = (int)iparams[1]; t->rollout_depth = (int)iparams[2];
+    t->policy = (int)iparams[3]; t->extrapolate = (int)iparams[4]; t->max_nodes = iparams[5];
+    t->token = iparams[6];
+    t->rng = seed;
+    return t;
+}
+
+void ctree_reset(void *p) { tree_clear((tree *)p); }
+void ctree_set_ids(void *p, int depth) { ((tree *)p)->ids_depth = depth; }
+
+static uint64_t node_hash(const double *S, int steps) {
+    uint64_t h = hash_state(S, NS, 1469598103934665603ULL ^ ((uint64_t)(steps + 1) * 0x9E3779B97F4A7C15ULL));
+    return h ? h : 1;
+}
+
+static int grow_table(tree *t) {
+    long cap = t->tcap * 2;
+    long *tab = (long *)calloc((size_t)cap, sizeof(long));
+    if (!tab) return -1;
+    for (long i = 0; i < t->nn; i++) {
+        long j = (long)(t->nodes[i].hash & (uint64_t)(cap - 1));
+        while (tab[j]) j = (j + 1) & (cap - 1);
+        tab[j] = i + 1;
+    }
+    free(t->table); t->table = tab; t->tcap = cap;
+    return 0;
+}
+
+/* the node of (S, steps), made when new; -1 when memory runs out */
+static long get_node(tree *t, const double *S, int steps, int done) {
+    uint64_t h = node_hash(S, steps);
+    long j = (long)(h & (uint64_t)(t->tcap - 1));
+    while (t->table[j]) {
+        long i = t->table[j] - 1;
+        t_node *nd = &t->nodes[i];
+        if (nd->hash == h && nd->steps == steps && same(t->states + (size_t)i * NS, S, NS)) return i;
+        j = (j + 1) & (t->tcap - 1);
+    }
+    if (t->nn == t->capn) {
+        long cap = t->capn ? t->capn * 2 : 1024;
+        t_node *nodes = (t_node *)realloc(t->nodes, sizeof(t_node) * (size_t)cap);
+        if (!nodes) return -1;
+        t->nodes = nodes;
+        double *states = (double *)realloc(t->states, sizeof(double) * NS * (size_t)cap);
+        if (!states) return -1;
+        t->states = states; t->capn = cap;
+    }
+    long i = t->nn++;
+    t_node *nd = &t->nodes[i];
+    memset(nd, 0, sizeof *nd);
+    nd->steps = steps; nd->done = done; nd->solved = done || steps <= 0; nd->hash = h;
+    memcpy(t->states + (size_t)i * NS, S, sizeof(double) * NS);
+    t->table[j] = i + 1;
+    if (t->nn * 2 > t->tcap && grow_table(t) < 0) return -1;
+    return i;
+}
+
+static double extrapolated(double total, int taken, int steps, double g) {
+    if (g == 1.0) return total * steps / taken;
+    return total * ((1.0 - pow(g, steps)) / (1.0 - g)) / ((1.0 - pow(g, taken)) / (1.0 - g));
+}
+
+static double walk1(tree *t, const double *S, int steps, int random_policy) {
+    int n = t->rollout_depth == 0 ? steps : (t->rollout_depth < steps ? t->rollout_depth : steps);
+    int taken = 0;
+    double total = ippc_walk(S, n, t->pool, random_policy ? t->npool : 0, t->noop, t->gamma, &t->rng, &taken);
+    int ended = taken < 0;
+    if (ended) taken = -taken;
+    t->sim_steps += taken;
+    if (!ended && taken < steps && taken > 0 && t->extrapolate) return extrapolated(total, taken, steps, t->gamma);
+    return total;
+}
+
+static double rollout(tree *t, const double *S, int steps) {
+    if (t->policy == 1) return walk1(t, S, steps, 0);
+    if (t->policy == 0) return walk1(t, S, steps, 1);
+    double a = walk1(t, S, steps, 0), b = walk1(t, S, steps, 1);
+    return a > b ? a : b;
+}
+
+static int set_expanded(t_node *nd) {
+    nd->expanded = 1;
+    if (nd->nacts == 0) { nd->solved = 1; nd->value = 0.0; return 0; }
+    double best = -INFINITY; int all = 1;
+    for (int a = 0; a < nd->nacts; a++) {
+        t_act *ac = &nd->acts[a];
+        ac->q = ac->h;
+        if (ac->h > best) best = ac->h;
+        if (!ac->solved) all = 0;
+    }
+    nd->value = best;
+    nd->solved = all;
+    return 0;
+}
+
+static int expand(tree *t, long ni) {
+    double S[NS + 1];
+    memcpy(S, t->states + (size_t)ni * NS, sizeof(double) * NS);
+    int steps = t->nodes[ni].steps;
+    int kept = ippc_probe(S, t->cands, t->ncand, t->U1, t->Z1, t->U2, t->Z2,
+                          t->pn1, t->pr1, t->pd1, t->pdet, t->psame, t->pkeep);
+    if (kept < 0) return -1;
+    for (int a = 0; a < t->ncand; a++) t->sim_steps += t->pdet[a] ? 1 : 2;
+    t_act *acts = (t_act *)calloc((size_t)(kept > 0 ? kept : 1), sizeof(t_act));
+    if (!acts) return -1;
+    int k = 0;
+    for (int a = 0; a < t->ncand; a++) {
+        if (!t->pkeep[a]) continue;
+        acts[k].act = a; acts[k].det = t->pdet[a];
+        memcpy(t->kept + (size_t)k * NA, t->cands + (size_t)a * NA, sizeof(double) * NA);
+        k++;
+    }
+    t_node *nd = &t->nodes[ni];
+    nd->acts = acts; nd->nacts = kept;
+    t->leaves++;
+    if (t->ids_depth && steps > 1 && kept > 0) {
+        int d = t->ids_depth < steps ? t->ids_depth : steps;
+        t->sim_steps += ippc_ids_values(S, t->kept, kept, t->cands, t->ncand, d, t->gamma, t->hv, t->token);
+        double lo = t->hv[0], hi = t->hv[0];
+        for (int a = 1; a < kept; a++) { if (t->hv[a] < lo) lo = t->hv[a]; if (t->hv[a] > hi) hi = t->hv[a]; }
+        if (!(lo == hi && kept > 1)) {
+            double scale = t->hweight * (t->gamma == 1.0 ? (double)steps / d : 1.0);
+            for (int a = 0; a < kept; a++) { acts[a].h = t->hv[a] * scale; acts[a].solved = 0; }
+            t->ids_leaves++;
+            return set_expanded(nd);
+        }
+    }
+    double nx[NS + 1], U[NU + 1], Z[NZ + 1], l[NL + 1];
+    for (int k2 = 0; k2 < kept; k2++) {
+        t_act *ac = &acts[k2];
+        int a = ac->act;
+        double r1 = t->pr1[a];
+        int d1 = t->pd1[a];
+        if (steps == 1 || (ac->det && d1)) { ac->h = r1; ac->solved = ac->det ? 1 : t->psame[a]; continue; }
+        const double *succ; double r; int done;
+        if (ac->det) { succ = t->pn1 + (size_t)a * NS; r = r1; done = d1; }
+        else {
+            double D = 0.0; r = 0.0;
+            draws(&t->rng, U, Z);
+            step(S, t->cands + (size_t)a * NA, U, Z, nx, &r, &D, l);
+            t->sim_steps++;
+            succ = nx; done = D != 0;
+        }
+        double value = done ? 0.0 : rollout(t, succ, steps - 1);
+        ac->h = r + t->gamma * value;
+        ac->solved = 0;
+    }
+    return set_expanded(nd);
+}
+
+static double out_total(tree *t, t_act *ac) {
+    double tot = 0.0;
+    for (int o = 0; o < ac->nout; o++) {
+        t_out *ou = &ac->outs[o];
+        double c = ou->rsum + t->gamma * ou->count * t->nodes[ou->child].value;
+        ou->contrib = c; tot += c;
+    }
+    return tot;
+}
+
+static void update(tree *t, t_node *nd, int a, t_out *ou) {
+    t_act *ac = &nd->acts[a];
+    if (ac->det && ou && t->nodes[ou->child].solved) {
+        ac->solved = 1;
+        ac->q = ou->rsum / ou->count + t->gamma * t->nodes[ou->child].value;
+    } else if (!ac->solved) {
+        ac->q = (t->w * ac->h + ac->tot) / (t->w + ac->n);
+    }
+    double best = -INFINITY; int all = 1;
+    for (int b = 0; b < nd->nacts; b++) { if (nd->acts[b].q > best) best = nd->acts[b].q; if (!nd->acts[b].solved) all = 0; }
+    nd->value = best;
+    if (ac->solved && all) nd->solved = 1;
+}
+
+static int select_act(tree *t, t_node *nd) {
+    double hi = -INFINITY, lo = INFINITY;
+    for (int a = 0; a < nd->nacts; a++) { double q = nd->acts[a].q; if (q > hi) hi = q; if (q < lo) lo = q; }
+    double scale = fabs(hi) > fabs(lo) ? fabs(hi) : fabs(lo);
+    if (scale == 0) scale = 1.0;
+    double c = t->expl * scale, logn = log(nd->visits + t->w * nd->nacts + 1.0), best = -INFINITY;
+    int pick = -1, ties = 0;
+    for (int a = 0; a < nd->nacts; a++) {
+        t_act *ac = &nd->acts[a];
+        if (ac->solved) continue;
+        double v = ac->q + c * sqrt(logn / (t->w + ac->n));
+        if (v > best) { best = v; pick = a; ties = 1; }
+        else if (v == best) { ties++; if (unif(&t->rng) * ties < 1.0) pick = a; }
+    }
+    return pick;
+}
+
+#define PATHMAX 4096
+static int trial(tree *t, long root) {
+    long pn[PATHMAX]; int pa[PATHMAX], po[PATHMAX], depth = 0;
+    long ni = root;
+    double nx[NS + 1], U[NU + 1], Z[NZ + 1], l[NL + 1];
+    while (!t->nodes[ni].solved && depth < PATHMAX) {
+        if (!t->nodes[ni].expanded) { if (expand(t, ni) < 0) return -1; break; }
+        t_node *nd = &t->nodes[ni];
+        int a = select_act(t, nd);
+        if (a < 0) break;
+        double r = 0.0, D = 0.0;
+        draws(&t->rng, U, Z);
+        step(t->states + (size_t)ni * NS, t->cands + (size_t)nd->acts[a].act * NA, U, Z, nx, &r, &D, l);
+        t->sim_steps++;
+        int steps = nd->steps;
+        long child = get_node(t, nx, steps - 1, D != 0);
+        if (child < 0) return -1;
+        t_act *ac = &t->nodes[ni].acts[a];
+        int o = 0;
+        while (o < ac->nout && ac->outs[o].child != child) o++;
+        if (o == ac->nout) {
+            if (ac->nout == ac->cap) {
+                int cap = ac->cap ? ac->cap * 2 : 2;
+                t_out *outs = (t_out *)realloc(ac->outs, sizeof(t_out) * (size_t)cap);
+                if (!outs) return -1;
+                ac->outs = outs; ac->cap = cap;
+            }
+            ac->outs[o].child = child; ac->outs[o].count = 0; ac->outs[o].rsum = 0.0; ac->outs[o].contrib = 0.0;
+            ac->nout++;
+        }
+        ac->outs[o].count++; ac->outs[o].rsum += r;
+        pn[depth] = ni; pa[depth] = a; po[depth] = o; depth++;
+        ni = child;
+    }
+    for (int k = depth - 1; k >= 0; k--) {
+        t_node *nd = &t->nodes[pn[k]];
+        t_act *ac = &nd->acts[pa[k]];
+        t_out *ou = &ac->outs[po[k]];
+        ac->n++; nd->visits++;
+        if (ac->nout <= t->bellman) ac->tot = out_total(t, ac);
+        else {
+            double c = ou->rsum + t->gamma * ou->count * t->nodes[ou->child].value;
+            ac->tot += c - ou->contrib; ou->contrib = c;
+        }
+        update(t, nd, pa[k], ou);
+    }
+    return 0;
+}
+
+static void refresh(tree *t, long ni) {
+    t_node *nd = &t->nodes[ni];
+    for (int a = 0; a < nd->nacts; a++) {
+        t_act *ac = &nd->acts[a];
+        if (ac->solved || !ac->nout) continue;
+        ac->tot = out_total(t, ac);
+        update(t, nd, a, ac->det ? &ac->outs[0] : 0);
+    }
+}
+
+/* The root node of (S, steps); the tree is forgotten first when it holds more than
+   max_nodes nodes. -1: out of memory. */
+long ctree_root(void *p, const double *S, int steps) {
+    tree *t = (tree *)p;
+    if (t->nn > t->max_nodes) tree_clear(t);
+    return get_node(t, S, steps, 0);
+}
+
+/* Trials from `root` for `budget` seconds (less the slowest recent trial), or exactly
+   `iterations` (>= 0); the root is expanded first whatever the time. STATS: trials,
+   leaves, ids_leaves, sim_steps of this call. Returns 0, or -1 when memory ran out. */
+int ctree_search(void *p, long root, double budget, long iterations, long *STATS) {
+    tree *t = (tree *)p;
+    t->trials = t->leaves = t->ids_leaves = t->sim_steps = 0;
+    int rc = 0;
+    double end = now_s() + budget;
+    if (!t->nodes[root].expanded && !t->nodes[root].solved) rc = expand(t, root);
+    double piece = 0.0;
+    long done = 0;
+    while (rc == 0 && !t->nodes[root].solved) {
+        if (iterations >= 0) { if (done >= iterations) break; }
+        else if (now_s() + piece >= end) break;
+        double t0 = now_s();
+        rc = trial(t, root);
+        done++;
+        double took = now_s() - t0;
+        piece = took > 0.8 * piece ? took : 0.8 * piece;
+    }
+    if (rc == 0) refresh(t, root);
+    STATS[0] = done; STATS[1] = t->leaves; STATS[2] = t->ids_leaves; STATS[3] = t->sim_steps;
+    return rc;
+}
+
+/* A node's actions: candidate indices, values, samples, solved labels; FLAGS: expanded, solved, steps,
+   node count. Returns the number of actions; VALUE its value. */
+int ctree_info(void *p, long ni, int cap, int *ACTS, double *Q, long *N, int *SOLVED, double *VALUE,
+               long *FLAGS) {
+    tree *t = (tree *)p;
+    t_node *nd = &t->nodes[ni];
+    for (int a = 0; a < nd->nacts && a < cap; a++) {
+        ACTS[a] = nd->acts[a].act; Q[a] = nd->acts[a].q; N[a] = nd->acts[a].n; SOLVED[a] = nd->acts[a].solved;
+    }
+    *VALUE = nd->value;
+    FLAGS[0] = nd->expanded; FLAGS[1] = nd->solved; FLAGS[2] = nd->steps; FLAGS[3] = t->nn;
+    return nd->nacts;
+}
+"""
+
+_D = ctypes.POINTER(ctypes.c_double)
+_I = ctypes.POINTER(ctypes.c_int)
+_L = ctypes.POINTER(ctypes.c_long)
+_POLICIES = {"random": 0, "noop": 1, "best": 2}
+
+
+class CRoot(TNode):
+    """The view of a node of the C tree: its actions (as candidate rows),
+    values, samples and labels, copied out after the search."""
+
+    __slots__ = ("index",)
+
+    def __init__(self, state: tuple[Any, ...], steps: int, index: int) -> None:
+        super().__init__(state, steps, False)
+        self.index = index
+
+
+class CTree:
+    """One session's search tree in C (see the module docstring)."""
+
+    def __init__(
+        self,
+        c: CStep,
+        rows: list[int],
+        acts: list[tuple[Any, ...]],
+        pool: list[tuple[Any, ...]] | None,
+        probes: tuple[list[float], list[float], list[float], list[float]],
+        settings: Settings,
+        gamma: float,
+        seed: int,
+        token: int,
+    ) -> None:
+        lib = c.lib
+        lib.ctree_new.restype = ctypes.c_void_p
+        lib.ctree_new.argtypes = [
+            _D,
+            ctypes.c_int,
+            _D,
+            ctypes.c_int,
+            _D,
+            _D,
+            _D,
+            _L,
+            ctypes.c_uint64,
+        ]
+        lib.ctree_free.argtypes = [ctypes.c_void_p]
+        lib.ctree_reset.argtypes = [ctypes.c_void_p]
+        lib.ctree_set_ids.argtypes = [ctypes.c_void_p, ctypes.c_int]
+        lib.ctree_root.argtypes = [ctypes.c_void_p, _D, ctypes.c_int]
+        lib.ctree_root.restype = ctypes.c_long
+        lib.ctree_search.argtypes = [
+            ctypes.c_void_p,
+            ctypes.c_long,
+            ctypes.c_double,
+            ctypes.c_long,
+            _L,
+        ]
+        lib.ctree_info.argtypes = [
+            ctypes.c_void_p,
+            ctypes.c_long,
+            ctypes.c_int,
+            _I,
+            _D,
+            _L,
+            _I,
+            _D,
+            _L,
+        ]
+        self.c = c
+        self.lib = lib
+        self.rows = rows
+        u1, z1, u2, z2 = probes
+        flat = [*u1[: c.nu], *z1[: c.nz], *u2[: c.nu], *z2[: c.nz]]
+        block = (ctypes.c_double * len(flat))(*flat)
+        params = (ctypes.c_double * 4)(
+            gamma, settings.init_weight, settings.exploration, settings.heuristic_weight
+        )
+        iparams = (ctypes.c_long * 7)(
+            0,
+            settings.bellman_outcomes,
+            settings.rollout_depth,
+            _POLICIES[settings.rollout_policy],
+            int(settings.extrapolate),
+            settings.max_nodes,
+            token,
+        )
+        pool = pool or []
+        self._ptr = lib.ctree_new(
+            c.block(acts),
+            len(acts),
+            c.block(pool),
+            len(pool),
+            c.noop,
+            block,
+            params,
+            iparams,
+            seed & (2**64 - 1),
+        )
+        if not self._ptr:
+            raise MemoryError("ctree_new")
+        n = max(1, len(acts))
+        self._acts = (ctypes.c_int * n)()
+        self._q = (ctypes.c_double * n)()
+        self._n = (ctypes.c_long * n)()
+        self._solved = (ctypes.c_int * n)()
+        self._value = ctypes.c_double()
+        self._flags = (ctypes.c_long * 4)()
+        self._stats = (ctypes.c_long * 4)()
+
+    def __del__(self) -> None:
+        ptr = getattr(self, "_ptr", None)
+        if ptr:
+            self.lib.ctree_free(ptr)
+            self._ptr = None
+
+    def set_ids_depth(self, depth: int) -> None:
+        self.lib.ctree_set_ids(self._ptr, depth)
+
+    def start_round(self) -> None:
+        self.lib.ctree_reset(self._ptr)
+
+    def root(self, state: tuple[Any, ...], steps: int) -> CRoot:
+        """The root's view (a `TNode` whose fields are copied from C)."""
+        s = self.c._load(state)
+        index = self.lib.ctree_root(self._ptr, s, steps)
+        if index < 0:
+            raise MemoryError("ctree_root")
+        node = CRoot(state, steps, index)
+        self._read(node)
+        return node
+
+    def _read(self, node: CRoot) -> None:
+        index = node.index
+        k = self.lib.ctree_info(
+            self._ptr,
+            index,
+            len(self._acts),
+            self._acts,
+            self._q,
+            self._n,
+            self._solved,
+            ctypes.byref(self._value),
+            self._flags,
+        )
+        node.expanded = bool(self._flags[0])
+        node.solved = bool(self._flags[1])
+        node.value = self._value.value
+        node.rows = [self.rows[i] for i in self._acts[:k]]
+        node.q = list(self._q[:k])
+        node.n = list(self._n[:k])
+        node.asolved = [bool(x) for x in self._solved[:k]]
+        self.size = int(self._flags[3])
+
+    def search(
+        self, root: TNode, deadline: float | None, iterations: int | None, turn: SearchStats
+    ) -> None:
+        """Trials from `root` until `deadline` (time.monotonic) or exactly
+        `iterations`; the root's view is read afterwards."""
+        assert isinstance(root, CRoot)
+        index = root.index
+        budget = 1e9 if deadline is None else max(0.0, deadline - time.monotonic())
+        rc = self.lib.ctree_search(
+            self._ptr, index, budget, -1 if iterations is None else iterations, self._stats
+        )
+        if rc < 0:
+            raise MemoryError("ctree_search")
+        turn.trials += int(self._stats[0])
+        turn.leaves += int(self._stats[1])
+        turn.ids_leaves += int(self._stats[2])
+        turn.sim_steps += int(self._stats[3])
+        self._read(root)
+
+
+def attach(search: THTS) -> bool:
+    """Run `search`'s trials in C from now on, where they fit: the compiled
+    step (built with `TREE_C`), static candidates, no reward-lock check.
+    Call it once IDS's depth is known. Returns whether it does."""
+    c = search.c
+    if c is None or not search._static or search.locks is not None:
+        return False
+    if not hasattr(c.lib, "ctree_new"):
+        return False
+    rows = search._candidates(search.fast.encode_state(search.sim.initial_state(1)))
+    search.tree = CTree(
+        c,
+        list(rows),
+        [search._tuple(r) for r in rows],
+        search.pool,
+        search._probe_draws,
+        search.st,
+        search.gamma,
+        int(search.rng.integers(0, 2**63 - 1)),
+        search._token,
+    )
+    search.tree.set_ids_depth(search.ids_depth)
+    return True
