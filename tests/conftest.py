@@ -3,6 +3,8 @@ rddlrepository corpus."""
 
 from __future__ import annotations
 
+import os
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -11,6 +13,21 @@ REPO = Path(__file__).resolve().parents[1]
 #: Every file the tests read lives here (see tests/data/README.md).
 DATA = REPO / "tests" / "data"
 RDDLSIM_RDDL = DATA / "rddlsim" / "rddl"
+
+
+@pytest.fixture(scope="session", autouse=True)
+def cstep_cache(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Path]:
+    """The C steps `rddl.sim.cstep` compiles (every thts session with a C
+    compiler) are cached in the run's temporary folder (`IPPC_CACHE`), not in
+    ~/.cache; one folder for every xdist worker of the run (a library is
+    written under a temporary name and renamed, so workers may share it)."""
+    base = tmp_path_factory.getbasetemp()
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        base = base.parent
+    folder = base / "ippc-cache"
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setenv("IPPC_CACHE", str(folder))
+        yield folder
 
 
 @pytest.fixture(scope="session")
