@@ -181,6 +181,11 @@ class ActionChooser:
             self.pool = self.pool[ok]
             self.constrained = False
         self._known: dict[bytes, Array] = {}  # all the legal candidates of a state key
+        self.fixed_samples = False
+        """Keep a state key's sample of candidates too (where there are more
+        than `max_actions`), not only complete sets: the same candidates for
+        the same key, and the solver asked once per key (set by the thts
+        engine's C tree, which asks for every new node and IDS node)."""
 
     def describe(self) -> str:
         """For the log: how candidates and rollout actions are found."""
@@ -209,7 +214,8 @@ class ActionChooser:
                 else:
                     rows = self.lib.add(arrays)
                     space = self.solver.space(state, 0)
-                    if space.complete and space.count <= k and len(self._known) < 65536:
+                    whole = space.complete and space.count <= k
+                    if (whole or self.fixed_samples) and len(self._known) < 65536:
                         self._known[key] = rows
             out.append(rows)
         return out

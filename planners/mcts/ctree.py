@@ -34,7 +34,9 @@ Imports the compiled step (`rddl.sim.cstep`) and the node type of `thts`
 from __future__ import annotations
 
 import ctypes
+import logging
 import time
+from collections.abc import Callable
 from typing import Any
 
 from ...rddl.sim.cstep import CStep
@@ -52,6 +54,8 @@ typedef struct { int act; long n; double h, tot, q; int det, solved; int nout, c
 typedef struct { int steps; int done, expanded, solved; double value; int nacts; t_act *acts; long visits; uint64_t hash; } t_node;
 typedef struct {
     int ncand; double *cands; int npool; double *pool; double noop[NA];
+    cands_fn cb; long libn, libcap; double *lib;  /* state-dependent candidates */
+    int scap;
     double U1[NU], Z1[NZ], U2[NU], Z2[NZ];
     double gamma, w, expl, hweight;
     int ids_depth, bellman, rollout_depth, policy, extrapolate; long max_nodes, token;
@@ -78,7 +82,7 @@ void ctree_free(void *p) {
     tree *t = (tree *)p;
     if (!t) return;
     tree_clear(t);
-    free(t->nodes); free(t->states); free(t->table); free(t->cands); free(t->pool);
+    free(t->nodes); free(t->states); free(t->table); free(t->cands); free(t->pool); free(t->lib);
     free(t->pn1); free(t->pr1); free(t->kept); free(t->pd1); free(t->pdet); free(t->psame);
     free(t->pkeep); free(t->hv);
     free(t);
@@ -88,10 +92,13 @@ void ctree_free(void *p) {
    iparams: ids_depth, bellman_outcomes, rollout_depth, policy (0 random, 1 noop, 2 best),
    extrapolate, max_nodes, token */
 void *ctree_new(const double *cands, int ncand, const double *pool, int npool, const double *noop,
-                const double *probes, const double *params, const long *iparams, uint64_t seed) {
+                const double *probes, const double *params, const long *iparams, uint64_t seed,
+                cands_fn cb) {
     tree *t = (tree *)calloc(1, sizeof(tree));
     if (!t) return 0;
+    t->cb = cb;
     int m = ncand > 0 ? ncand : 1;
+    t->scap = m;
     t->ncand = ncand;
     t->cands = (double *)malloc(sizeof(double) * NA * (size_t)m);
     t->npool = npool;
@@ -117,6 +124,40 @@ void *ctree_new(const double *cands, int ncand, const double *pool, int npool, c
     t->token = iparams[6];
     t->rng = seed;
     return t;
+}
+
+/* probe scratch for n candidates */
+static int ensure_scratch(tree *t, int n) {
+    if (n <= t->scap) return 0;
+    int m = n * 2;
+    free(t->pn1); free(t->pr1); free(t->kept); free(t->hv); free(t->pd1); free(t->pdet); free(t->psame); free(t->pkeep);
+    t->pn1 = (double *)malloc(sizeof(double) * NS * (size_t)m);
+    t->pr1 = (double *)malloc(sizeof(double) * (size_t)m);
+    t->kept = (double *)malloc(sizeof(double) * NA * (size_t)m);
+    t->hv = (double *)malloc(sizeof(double) * (size_t)m);
+    t->pd1 = (int *)malloc(sizeof(int) * (size_t)m); t->pdet = (int *)malloc(sizeof(int) * (size_t)m);
+    t->psame = (int *)malloc(sizeof(int) * (size_t)m); t->pkeep = (int *)malloc(sizeof(int) * (size_t)m);
+    t->scap = m;
+    if (!t->pn1 || !t->pr1 || !t->kept || !t->hv || !t->pd1 || !t->pdet || !t->psame || !t->pkeep) { t->scap = 0; return -1; }
+    return 0;
+}
+
+/* the action vector of an action id: a candidate's index, or (with a callback) its
+   library row */
+static const double *act_vec(tree *t, int act) { return (t->cb ? t->lib : t->cands) + (size_t)act * NA; }
+
+static int lib_put(tree *t, int row, const double *vec) {
+    if (row < 0) return -1;
+    if (row >= t->libcap) {
+        long cap = t->libcap ? t->libcap : 256;
+        while (cap <= row) cap *= 2;
+        double *lib = (double *)realloc(t->lib, sizeof(double) * NA * (size_t)cap);
+        if (!lib) return -1;
+        t->lib = lib; t->libcap = cap;
+    }
+    memcpy(t->lib + (size_t)row * NA, vec, sizeof(double) * NA);
+    if (row >= t->libn) t->libn = row + 1;
+    return 0;
 }
 
 void ctree_reset(void *p) { tree_clear((tree *)p); }
@@ -211,25 +252,39 @@ static int expand(tree *t, long ni) {
     double S[NS + 1];
     memcpy(S, t->states + (size_t)ni * NS, sizeof(double) * NS);
     int steps = t->nodes[ni].steps;
-    int kept = ippc_probe(S, t->cands, t->ncand, t->U1, t->Z1, t->U2, t->Z2,
+    const double *cands = t->cands;
+    int ncand = t->ncand;
+    double *own = 0;
+    int *own_idx = 0;
+    if (t->cb) {
+        ncand = cands_of(t->cb, S, &own, &own_idx);
+        if (ncand < 0) return -1;
+        for (int a = 0; a < ncand; a++) if (lib_put(t, own_idx[a], own + (size_t)a * NA) < 0) { free(own); free(own_idx); return -1; }
+        cands = own;
+    }
+    if (ensure_scratch(t, ncand) < 0) { free(own); free(own_idx); return -1; }
+    int kept = ippc_probe(S, cands, ncand, t->U1, t->Z1, t->U2, t->Z2,
                           t->pn1, t->pr1, t->pd1, t->pdet, t->psame, t->pkeep);
-    if (kept < 0) return -1;
-    for (int a = 0; a < t->ncand; a++) t->sim_steps += t->pdet[a] ? 1 : 2;
+    if (kept < 0) { free(own); free(own_idx); return -1; }
+    for (int a = 0; a < ncand; a++) t->sim_steps += t->pdet[a] ? 1 : 2;
     t_act *acts = (t_act *)calloc((size_t)(kept > 0 ? kept : 1), sizeof(t_act));
-    if (!acts) return -1;
+    if (!acts) { free(own); free(own_idx); return -1; }
     int k = 0;
-    for (int a = 0; a < t->ncand; a++) {
+    for (int a = 0; a < ncand; a++) {
         if (!t->pkeep[a]) continue;
-        acts[k].act = a; acts[k].det = t->pdet[a];
-        memcpy(t->kept + (size_t)k * NA, t->cands + (size_t)a * NA, sizeof(double) * NA);
+        acts[k].act = own_idx ? own_idx[a] : a; acts[k].det = t->pdet[a];
+        memcpy(t->kept + (size_t)k * NA, cands + (size_t)a * NA, sizeof(double) * NA);
         k++;
     }
+    free(own); free(own_idx);
     t_node *nd = &t->nodes[ni];
     nd->acts = acts; nd->nacts = kept;
     t->leaves++;
     if (t->ids_depth && steps > 1 && kept > 0) {
         int d = t->ids_depth < steps ? t->ids_depth : steps;
+        IDS_CB = t->cb;
         t->sim_steps += ippc_ids_values(S, t->kept, kept, t->cands, t->ncand, d, t->gamma, t->hv, t->token);
+        IDS_CB = 0;
         double lo = t->hv[0], hi = t->hv[0];
         for (int a = 1; a < kept; a++) { if (t->hv[a] < lo) lo = t->hv[a]; if (t->hv[a] > hi) hi = t->hv[a]; }
         if (!(lo == hi && kept > 1)) {
@@ -240,9 +295,9 @@ static int expand(tree *t, long ni) {
         }
     }
     double nx[NS + 1], U[NU + 1], Z[NZ + 1], l[NL + 1];
-    for (int k2 = 0; k2 < kept; k2++) {
+    for (int k2 = 0, a = -1; k2 < kept; k2++) {
         t_act *ac = &acts[k2];
-        int a = ac->act;
+        do a++; while (!t->pkeep[a]);    /* its probe's index */
         double r1 = t->pr1[a];
         int d1 = t->pd1[a];
         if (steps == 1 || (ac->det && d1)) { ac->h = r1; ac->solved = ac->det ? 1 : t->psame[a]; continue; }
@@ -251,7 +306,7 @@ static int expand(tree *t, long ni) {
         else {
             double D = 0.0; r = 0.0;
             draws(&t->rng, U, Z);
-            step(S, t->cands + (size_t)a * NA, U, Z, nx, &r, &D, l);
+            step(S, t->kept + (size_t)k2 * NA, U, Z, nx, &r, &D, l);
             t->sim_steps++;
             succ = nx; done = D != 0;
         }
@@ -315,7 +370,7 @@ static int trial(tree *t, long root) {
         if (a < 0) break;
         double r = 0.0, D = 0.0;
         draws(&t->rng, U, Z);
-        step(t->states + (size_t)ni * NS, t->cands + (size_t)nd->acts[a].act * NA, U, Z, nx, &r, &D, l);
+        step(t->states + (size_t)ni * NS, act_vec(t, nd->acts[a].act), U, Z, nx, &r, &D, l);
         t->sim_steps++;
         int steps = nd->steps;
         long child = get_node(t, nx, steps - 1, D != 0);
@@ -414,6 +469,8 @@ _D = ctypes.POINTER(ctypes.c_double)
 _I = ctypes.POINTER(ctypes.c_int)
 _L = ctypes.POINTER(ctypes.c_long)
 _POLICIES = {"random": 0, "noop": 1, "best": 2}
+_CANDS = ctypes.CFUNCTYPE(ctypes.c_int, _D, _D, ctypes.c_int, _I)
+log = logging.getLogger(__name__)
 
 
 class CRoot(TNode):
@@ -441,6 +498,8 @@ class CTree:
         gamma: float,
         seed: int,
         token: int,
+        candidates: Callable[[tuple[Any, ...]], list[int]] | None = None,
+        action_of: Callable[[int], tuple[Any, ...]] | None = None,
     ) -> None:
         lib = c.lib
         lib.ctree_new.restype = ctypes.c_void_p
@@ -454,6 +513,7 @@ class CTree:
             _D,
             _L,
             ctypes.c_uint64,
+            ctypes.c_void_p,
         ]
         lib.ctree_free.argtypes = [ctypes.c_void_p]
         lib.ctree_reset.argtypes = [ctypes.c_void_p]
@@ -481,6 +541,13 @@ class CTree:
         self.c = c
         self.lib = lib
         self.rows = rows
+        self.dynamic = candidates is not None
+        """Whether candidates come from `candidates(state)` (library rows,
+        state-dependent legality) rather than the fixed `rows`."""
+        self._callback: Any = None
+        if candidates is not None:
+            assert action_of is not None
+            self._callback = _CANDS(self._candidates_fn(candidates, action_of))
         u1, z1, u2, z2 = probes
         flat = [*u1[: c.nu], *z1[: c.nz], *u2[: c.nu], *z2[: c.nz]]
         block = (ctypes.c_double * len(flat))(*flat)
@@ -507,14 +574,11 @@ class CTree:
             params,
             iparams,
             seed & (2**64 - 1),
+            ctypes.cast(self._callback, ctypes.c_void_p) if self._callback is not None else None,
         )
         if not self._ptr:
             raise MemoryError("ctree_new")
-        n = max(1, len(acts))
-        self._acts = (ctypes.c_int * n)()
-        self._q = (ctypes.c_double * n)()
-        self._n = (ctypes.c_long * n)()
-        self._solved = (ctypes.c_int * n)()
+        self._info_buffers(max(1, len(acts)))
         self._value = ctypes.c_double()
         self._flags = (ctypes.c_long * 4)()
         self._stats = (ctypes.c_long * 4)()
@@ -524,6 +588,39 @@ class CTree:
         if ptr:
             self.lib.ctree_free(ptr)
             self._ptr = None
+
+    def _info_buffers(self, n: int) -> None:
+        self._acts = (ctypes.c_int * n)()
+        self._q = (ctypes.c_double * n)()
+        self._n = (ctypes.c_long * n)()
+        self._solved = (ctypes.c_int * n)()
+
+    def _candidates_fn(
+        self,
+        candidates: Callable[[tuple[Any, ...]], list[int]],
+        action_of: Callable[[int], tuple[Any, ...]],
+    ) -> Callable[..., int]:
+        """The C side's `cands_fn`: a state's legal candidates (library rows
+        and their action vectors) from the Python chooser."""
+        c = self.c
+        k, na = c.n_state, c.na
+        size = ctypes.sizeof(ctypes.c_double) * na
+
+        def fn(s: Any, out: Any, cap: int, idx: Any) -> int:
+            try:
+                rows = candidates(tuple(s[:k]))
+                if len(rows) > cap:
+                    return -len(rows)
+                base = ctypes.cast(out, ctypes.c_void_p).value or 0
+                for i, r in enumerate(rows):
+                    idx[i] = int(r)
+                    ctypes.memmove(base + i * size, c.action(action_of(int(r))), size)
+                return len(rows)
+            except Exception:  # noqa: BLE001 - C cannot take it: a dead end, logged
+                log.exception("mcts: the candidates of a state failed")
+                return 0
+
+        return fn
 
     def set_ids_depth(self, depth: int) -> None:
         self.lib.ctree_set_ids(self._ptr, depth)
@@ -543,21 +640,26 @@ class CTree:
 
     def _read(self, node: CRoot) -> None:
         index = node.index
-        k = self.lib.ctree_info(
-            self._ptr,
-            index,
-            len(self._acts),
-            self._acts,
-            self._q,
-            self._n,
-            self._solved,
-            ctypes.byref(self._value),
-            self._flags,
-        )
+        while True:
+            k = self.lib.ctree_info(
+                self._ptr,
+                index,
+                len(self._acts),
+                self._acts,
+                self._q,
+                self._n,
+                self._solved,
+                ctypes.byref(self._value),
+                self._flags,
+            )
+            if k <= len(self._acts):
+                break
+            self._info_buffers(k)  # (state-dependent candidates: more than before)
         node.expanded = bool(self._flags[0])
         node.solved = bool(self._flags[1])
         node.value = self._value.value
-        node.rows = [self.rows[i] for i in self._acts[:k]]
+        acts = self._acts[:k]
+        node.rows = list(acts) if self.dynamic else [self.rows[i] for i in acts]
         node.q = list(self._q[:k])
         node.n = list(self._n[:k])
         node.asolved = [bool(x) for x in self._solved[:k]]
@@ -588,21 +690,19 @@ def attach(search: THTS) -> bool:
     step (built with `TREE_C`), static candidates, no reward-lock check.
     Call it once IDS's depth is known. Returns whether it does."""
     c = search.c
-    if c is None or not search._static or search.locks is not None:
+    if c is None or search.locks is not None or not hasattr(c.lib, "ctree_new"):
         return False
-    if not hasattr(c.lib, "ctree_new"):
-        return False
-    rows = search._candidates(search.fast.encode_state(search.sim.initial_state(1)))
-    search.tree = CTree(
-        c,
-        list(rows),
-        [search._tuple(r) for r in rows],
-        search.pool,
-        search._probe_draws,
-        search.st,
-        search.gamma,
-        int(search.rng.integers(0, 2**63 - 1)),
-        search._token,
-    )
+    seed = int(search.rng.integers(0, 2**63 - 1))
+    common = (search.pool, search._probe_draws, search.st, search.gamma, seed, search._token)
+    if search._static:
+        rows = search._candidates(search.fast.encode_state(search.sim.initial_state(1)))
+        search.tree = CTree(c, list(rows), [search._tuple(r) for r in rows], *common)
+    else:
+        # legality depends on the state: each new node asks the chooser (one
+        # sample of candidates a state key)
+        search.chooser.fixed_samples = True
+        search.tree = CTree(
+            c, [], [], *common, candidates=search._candidates, action_of=search._tuple
+        )
     search.tree.set_ids_depth(search.ids_depth)
     return True

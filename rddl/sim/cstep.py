@@ -103,6 +103,16 @@ static double py_ln(double x) { return x > 0 ? log(x) : (x == 0 ? -INFINITY : NA
 static double py_sqrt(double x) { return x >= 0 ? sqrt(x) : NAN; }
 static double py_pow(double x, double y) { return pow(x, y); }
 static double py_sgn(double x) { return (double)((x > 0) - (x < 0)); }
+/* Python's float // (its divmod: 1.0 // 0.1 is 9.0, not floor(10.000000000000002)) */
+static double py_floordiv(double x, double y) {
+    if (y == 0) return floor(py_div(x, y));
+    double mod = fmod(x, y), div = (x - mod) / y;
+    if (mod != 0 && ((y < 0) != (mod < 0))) div -= 1.0;
+    if (div == 0) return copysign(0.0, x / y);
+    double fl = floor(div);
+    if (div - fl > 0.5) fl += 1.0;
+    return fl;
+}
 static double py_mod(double x, double y) { double m = fmod(x, y); if (m != 0 && ((m < 0) != (y < 0))) m += y; return m; }
 static double py_discrete(double u, const double *p, int n) {
     double acc = 0.0;
@@ -256,7 +266,7 @@ class _Translator:
         if op is not None:
             return f"(({a}) {op} ({b}))"
         if isinstance(n.op, ast.FloorDiv):
-            return f"floor(({a}) / ({b}))"
+            return f"py_floordiv({a}, {b})"
         if isinstance(n.op, ast.Mod):
             return f"py_mod({a}, {b})"
         if isinstance(n.op, ast.Pow):
@@ -507,6 +517,26 @@ static const double *IDS_ACTS = 0;
 static int IDS_N = 0;
 static long ids_steps = 0;
 static long ids_token = -1;
+/* Candidates that depend on the state: a caller's function that writes the
+   legal candidates of S (at most cap rows of NA) into OUT and their ids into
+   IDX, and returns their number (-need when cap is too small). */
+typedef int (*cands_fn)(const double *S, double *OUT, int cap, int *IDX);
+static cands_fn IDS_CB = 0;
+
+/* The candidates of S from `cb` in a block of its own (free it); -1: none. */
+static int cands_of(cands_fn cb, const double *S, double **OUT, int **IDX) {
+    int cap = 64;
+    for (int tries = 0; tries < 4; tries++) {
+        double *out = (double *)malloc(sizeof(double) * NA * (size_t)cap);
+        int *idx = (int *)malloc(sizeof(int) * (size_t)cap);
+        if (!out || !idx) { free(out); free(idx); return -1; }
+        int n = cb(S, out, cap, idx);
+        if (n >= 0) { *OUT = out; *IDX = idx; return n; }
+        free(out); free(idx);
+        cap = -n;
+    }
+    return -1;
+}
 
 void ippc_ids_clear(void) { if (cache) memset(cache, 0, sizeof(entry) * cache_cap); cache_used = 0; }
 
@@ -534,12 +564,21 @@ static double ids(const double *S, int depth, double gamma) {
     double v;
     if (cache_get(key, &v)) return v;
     double best = -INFINITY, l[NL + 1];
-    double *nx = (double *)malloc(sizeof(double) * (size_t)(NS + 1) * (size_t)(IDS_N > 0 ? IDS_N : 1));
-    uint64_t *seen = (uint64_t *)malloc(sizeof(uint64_t) * (size_t)(IDS_N > 0 ? IDS_N : 1));
+    const double *acts = IDS_ACTS;
+    int nacts = IDS_N;
+    double *own = 0;
+    int *own_idx = 0;
+    if (IDS_CB) {
+        nacts = cands_of(IDS_CB, S, &own, &own_idx);
+        if (nacts < 0) nacts = 0;
+        acts = own;
+    }
+    double *nx = (double *)malloc(sizeof(double) * (size_t)(NS + 1) * (size_t)(nacts > 0 ? nacts : 1));
+    uint64_t *seen = (uint64_t *)malloc(sizeof(uint64_t) * (size_t)(nacts > 0 ? nacts : 1));
     int nseen = 0;
-    for (int a = 0; a < IDS_N; a++) {
+    for (int a = 0; a < nacts && nx && seen; a++) {
         double *n = nx + (size_t)nseen * (NS + 1), r = 0.0, d = 0.0;
-        step(S, IDS_ACTS + (size_t)a * NA, LU, LZ, n, &r, &d, l);
+        step(S, acts + (size_t)a * NA, LU, LZ, n, &r, &d, l);
         ids_steps++;
         n[NS] = r;
         uint64_t h = hash_state(n, NS + 1, 1469598103934665603ULL);
@@ -551,7 +590,7 @@ static double ids(const double *S, int depth, double gamma) {
         if (d == 0 && depth > 1) r += gamma * ids(n, depth - 1, gamma);
         if (r > best) best = r;
     }
-    free(nx); free(seen);
+    free(nx); free(seen); free(own); free(own_idx);
     if (best == -INFINITY) best = 0.0;
     cache_put(key, best);
     return best;

@@ -91,11 +91,19 @@ def _sqrt(x: float) -> float:
 
 
 def _pow(x: float, y: float) -> float:
+    """C's pow (and numpy's power) over floats: nan for a negative base to a
+    fractional power, a signed infinity on overflow or for 0 to a negative
+    power."""
+    x, y = float(x), float(y)
     try:
-        return float(x) ** y  # type: ignore[no-any-return]
-    except (OverflowError, ZeroDivisionError):
-        return math.inf
+        return math.pow(x, y)
+    except OverflowError:
+        odd = y.is_integer() and y % 2 == 1
+        return -math.inf if x < 0 and odd else math.inf
     except ValueError:
+        if x == 0 and y < 0:
+            odd = y.is_integer() and y % 2 == 1
+            return math.copysign(math.inf, x) if odd else math.inf
         return math.nan
 
 
@@ -345,19 +353,19 @@ class _Writer:
                     return _as_bool(y) if x.const else _V("bool", const=False)
                 if y.known:
                     return _as_bool(x) if y.const else _V("bool", const=False)
-                return _V("bool", f"({x.code} and {y.code})")
+                return _V("bool", f"({_as_bool(x).code} and {_as_bool(y).code})")
             if op == "|":
                 if x.known:
                     return _V("bool", const=True) if x.const else _as_bool(y)
                 if y.known:
                     return _V("bool", const=True) if y.const else _as_bool(x)
-                return _V("bool", f"({x.code} or {y.code})")
+                return _V("bool", f"({_as_bool(x).code} or {_as_bool(y).code})")
             if op == "=>":
                 if x.known:
                     return _as_bool(y) if x.const else _V("bool", const=True)
                 if y.known and y.const:
                     return _V("bool", const=True)
-                return _V("bool", f"((not {x.code}) or {y.text()})")
+                return _V("bool", f"((not {x.code}) or {_as_bool(y).text()})")
             if x.known and y.known:
                 return _V("bool", const=bool(x.const) == bool(y.const))
             return _V("bool", f"(bool({x.text()}) == bool({y.text()}))")
@@ -636,6 +644,39 @@ class _Writer:
         return "\n".join([*head, *body, ret]) + "\n"
 
 
+def write_legal(sim: Simulator) -> tuple[str, dict[str, tuple[int, ...]]] | None:
+    """`_scalar_legal(S, A)`: whether the model's action preconditions and
+    state-action constraints hold for one state and one joint action (not
+    max-nondef-actions), as Python source over the step's scalars, with the
+    tables it reads; None when the model has no such constraint. Raises `ScalarUnsupported` as
+    the step's writer does (or where a constraint reads an interm fluent
+    or draws)."""
+    constraints = sim._preconditions
+    if not constraints:
+        return None
+    writer = _Writer(sim)
+    body: list[str] = []
+    writer.lines = body
+    parts: list[str] = []
+    for expr in constraints:
+        v = _as_bool(writer.num(writer.ev(expr, {})))
+        if v.known:
+            if not v.const:
+                parts = ["False"]
+                break
+            continue
+        parts.append(str(v.code))
+    if writer.n_uniforms or writer.n_normals:
+        raise ScalarUnsupported("a constraint that draws")
+    head = ["def _scalar_legal(S, A):"]
+    if writer.state_keys:
+        head.append(f"    ({', '.join(f's{i}' for i in range(len(writer.state_keys)))},) = S")
+    if writer.action_keys:
+        head.append(f"    ({', '.join(f'a{i}' for i in range(len(writer.action_keys)))},) = A")
+    ret = f"    return {' and '.join(f'bool({p})' for p in parts) if parts else 'True'}"
+    return "\n".join([*head, *body, ret]) + "\n", dict(writer.tables)
+
+
 def _as_bool(v: _V) -> _V:
     if v.known:
         return _V("bool", const=bool(v.const))
@@ -670,6 +711,28 @@ class ScalarStep:
         self.n_normals = writer.n_normals
         self.tables = dict(writer.tables)
         """The lookup tables the source reads by name (enum values as numbers)."""
+        self.legal_source: str | None = None
+        """`_scalar_legal(S, A)`'s source (None: no constraint, or not written)."""
+        self.legal: Callable[[tuple[Any, ...], tuple[Any, ...]], bool] | None = None
+        """`legal(state, actions)`: the preconditions and state-action
+        constraints (not max-nondef-actions); None where the model has none
+        (`constrained` False) or they could not be written (`legal_error`)."""
+        self.constrained = bool(sim._preconditions)
+        self.legal_error: str | None = None
+        written = None
+        try:
+            written = write_legal(sim)
+        except ScalarUnsupported as err:
+            self.legal_error = str(err)
+        if written is not None:
+            self.legal_source, legal_tables = written
+            # (the same names as the step's: one table per numeric enum type)
+            self.tables.update(legal_tables)
+            lns: dict[str, Any] = dict(_HELPERS)
+            lns.update(self.tables)
+            code = compile(self.legal_source, f"<rddl {sim.model.name}: _scalar_legal>", "exec")
+            exec(code, lns)  # noqa: S102
+            self.legal = lns["_scalar_legal"]
         ns: dict[str, Any] = dict(_HELPERS)
         ns.update(writer.tables)
         code = compile(self.source, f"<rddl {sim.model.name}: _scalar_step>", "exec")
