@@ -363,11 +363,14 @@ class _Translator:
             return f"{c}({', '.join(xs)})"
         raise self.fail(n)
 
-    def function(self) -> str:
-        tree = ast.parse(self.scalar.source)
+    def function(self, source: str | None = None) -> str:
+        """The body of the step (or of `legal`, given its source)."""
+        tree = ast.parse(source if source is not None else self.scalar.source)
         fn = tree.body[0]
         if not isinstance(fn, ast.FunctionDef):
             raise CUnavailable("unexpected source")
+        self.locals = set()
+        self.boolean = set()
         lines: list[str] = []
         for st in fn.body:
             if isinstance(st, ast.Assign) and len(st.targets) == 1:
@@ -396,6 +399,9 @@ class _Translator:
                     raise self.fail(st)
                 for j, e in enumerate(nxt.elts):
                     lines.append(f"    N[{j}] = {self.ex(e)};")
+                continue
+            if isinstance(st, ast.Return) and st.value is not None and source is not None:
+                lines.append(f"    return ({self.ex(st.value)}) != 0;")
                 continue
             raise self.fail(st)
         return "\n".join(lines)
@@ -433,6 +439,10 @@ static int same(const double *a, const double *b, int n) {
     for (int i = 0; i < n; i++) if (!(a[i] == b[i] || (a[i] != a[i] && b[i] != b[i]))) return 0;
     return 1;
 }
+
+/* whether the preconditions and state-action constraints hold (1 where the
+   model has none, or they could not be written) */
+int ippc_legal(const double *S, const double *A) { return legal(S, A); }
 
 int ippc_sizes(int *out) { out[0] = NS; out[1] = NA; out[2] = NU; out[3] = NZ; out[4] = NL; return 0; }
 
@@ -619,7 +629,8 @@ long ippc_ids_values(const double *S, const double *KEPT, int n, const double *C
 }
 
 /* A roll-out of up to `n` steps from S: noop (npool 0) or actions drawn
-   uniformly from POOL. *TAKEN: the steps made, negated when the run ended. */
+   uniformly from POOL (redrawn up to 8 times where illegal in the state,
+   then noop). *TAKEN: the steps made, negated when the run ended. */
 double ippc_walk(const double *S, int n, const double *POOL, int npool, const double *NOOP,
                  double gamma, uint64_t *rng, int *TAKEN) {
     double s[NS + 1], nx[NS + 1], U[NU + 1], Z[NZ + 1], l[NL + 1];
@@ -627,7 +638,13 @@ double ippc_walk(const double *S, int n, const double *POOL, int npool, const do
     double total = 0.0, disc = 1.0;
     int taken = 0, ended = 0;
     for (int t = 0; t < n; t++) {
-        const double *A = npool > 0 ? POOL + (size_t)(next64(rng) % (uint64_t)npool) * NA : NOOP;
+        const double *A = NOOP;
+        if (npool > 0) {   /* a uniform legal one, else noop */
+            for (int k = 0; k < 8; k++) {
+                const double *B = POOL + (size_t)(next64(rng) % (uint64_t)npool) * NA;
+                if (legal(s, B)) { A = B; break; }
+            }
+        }
         double r = 0.0, d = 0.0;
         draws(rng, U, Z);
         step(s, A, U, Z, nx, &r, &d, l);
@@ -662,6 +679,13 @@ def c_source(scalar: ScalarStep, extra: str = "") -> str:
     that may call them; raises `CUnavailable`)."""
     tr = _Translator(scalar)
     body = tr.function()
+    slots = tr.slots
+    legal = "    (void)S; (void)A; return 1;"
+    if scalar.legal_source is not None:
+        try:
+            legal = "    (void)S; (void)A;\n" + tr.function(scalar.legal_source)
+        except CUnavailable:
+            pass  # (roll-outs then draw without the check, as the Python step's do)
     ns, na = len(scalar.state_keys), len(scalar.action_keys)
     head = [
         _PRELUDE,
@@ -669,8 +693,11 @@ def c_source(scalar: ScalarStep, extra: str = "") -> str:
         f"#define NA {max(na, 1)}",
         f"#define NU {max(scalar.n_uniforms, 1)}",
         f"#define NZ {max(scalar.n_normals, 1)}",
-        f"#define NL {max(tr.slots, 1)}",
+        f"#define NL {max(slots, 1)}",
         *tr.table_defs,
+        "static int legal(const double *S, const double *A) {",
+        legal,
+        "}",
         "static void step(const double *S, const double *A, const double *U, const double *Z,",
         "                 double *N, double *R, double *D, double *L) {",
         "    (void)S; (void)A; (void)U; (void)Z; (void)L; *D = 0.0; *R = 0.0;",
@@ -757,6 +784,7 @@ class CStep:
         lib.ippc_walk.argtypes = [_D, ctypes.c_int, _D, ctypes.c_int, _D, ctypes.c_double, _U64, _I]
         lib.ippc_walk.restype = ctypes.c_double
         lib.ippc_ids_clear.argtypes = []
+        lib.ippc_legal.argtypes = [_D, _D]
         self.rng = ctypes.c_uint64(seed & (2**64 - 1))
         self._S = (ctypes.c_double * self.ns)()
         self._N = (ctypes.c_double * self.ns)()
@@ -876,6 +904,10 @@ class CStep:
             self._load(state), kept, n_kept, cands, n_cands, depth, gamma, out, token
         )
         return list(out[:n_kept]), int(steps)
+
+    def legal(self, state: StateT, act: tuple[Any, ...]) -> bool:
+        """The C `legal` (see `ScalarStep.legal`; True where there is none)."""
+        return bool(self.lib.ippc_legal(self._load(state), self.action(act)))
 
     def ids_clear(self) -> None:
         self.lib.ippc_ids_clear()

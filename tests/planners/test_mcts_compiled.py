@@ -40,9 +40,15 @@ def sysadmin() -> Model:
 
 
 def planner_on(model: Model, **options: str) -> tuple[MCTSPlanner, Simulator]:
+    """The planner with the Python tree over the C step's kernels: what a
+    session with reward locks runs; elsewhere the trials run in C
+    (`ctree.attach`, tested in test_mcts_thts.py and test_mcts_ctree.py), so
+    the C tree is dropped here to test this path."""
     sim = Simulator(model)
     planner = MCTSPlanner(engine="thts", **options)
     planner.start_session(SessionInfo(model.name, model, sim, rounds=1, time_allowed=60.0, seed=1))
+    if planner._thts is not None:
+        planner._thts.tree = None
     planner.start_round(1)
     return planner, sim
 
