@@ -88,44 +88,6 @@ void ctree_free(void *p) {
     free(t);
 }
 
-/* params: gamma, init_weight, exploration, heuristic_weight;
-   iparams: ids_depth, bellman_outcomes, rollout_depth, policy (0 random, 1 noop, 2 best),
-   extrapolate, max_nodes, token */
-void *ctree_new(const double *cands, int ncand, const double *pool, int npool, const double *noop,
-                const double *probes, const double *params, const long *iparams, uint64_t seed,
-                cands_fn cb) {
-    tree *t = (tree *)calloc(1, sizeof(tree));
-    if (!t) return 0;
-    t->cb = cb;
-    int m = ncand > 0 ? ncand : 1;
-    t->scap = m;
-    t->ncand = ncand;
-    t->cands = (double *)malloc(sizeof(double) * NA * (size_t)m);
-    t->npool = npool;
-    t->pool = (double *)malloc(sizeof(double) * NA * (size_t)(npool > 0 ? npool : 1));
-    t->pn1 = (double *)malloc(sizeof(double) * NS * (size_t)m);
-    t->pr1 = (double *)malloc(sizeof(double) * (size_t)m);
-    t->kept = (double *)malloc(sizeof(double) * NA * (size_t)m);
-    t->hv = (double *)malloc(sizeof(double) * (size_t)m);
-    t->pd1 = (int *)malloc(sizeof(int) * (size_t)m); t->pdet = (int *)malloc(sizeof(int) * (size_t)m);
-    t->psame = (int *)malloc(sizeof(int) * (size_t)m); t->pkeep = (int *)malloc(sizeof(int) * (size_t)m);
-    t->tcap = 1 << 12;
-    t->table = (long *)calloc((size_t)t->tcap, sizeof(long));
-    if (!t->cands || !t->pool || !t->pn1 || !t->pr1 || !t->kept || !t->hv || !t->pd1 || !t->pdet
-        || !t->psame || !t->pkeep || !t->table) { ctree_free(t); return 0; }
-    if (ncand) memcpy(t->cands, cands, sizeof(double) * NA * (size_t)ncand);
-    if (npool) memcpy(t->pool, pool, sizeof(double) * NA * (size_t)npool);
-    memcpy(t->noop, noop, sizeof(double) * NA);
-    memcpy(t->U1, probes, sizeof(double) * NU); memcpy(t->Z1, probes + NU, sizeof(double) * NZ);
-    memcpy(t->U2, probes + NU + NZ, sizeof(double) * NU); memcpy(t->Z2, probes + 2 * NU + NZ, sizeof(double) * NZ);
-    t->gamma = params[0]; t->w = params[1]; t->expl = params[2]; t->hweight = params[3];
-    t->ids_depth = (int)iparams[0]; t->bellman = (int)iparams[1]; t->rollout_depth = (int)iparams[2];
-    t->policy = (int)iparams[3]; t->extrapolate = (int)iparams[4]; t->max_nodes = iparams[5];
-    t->token = iparams[6];
-    t->rng = seed;
-    return t;
-}
-
 /* probe scratch for n candidates */
 static int ensure_scratch(tree *t, int n) {
     if (n <= t->scap) return 0;
@@ -140,6 +102,36 @@ static int ensure_scratch(tree *t, int n) {
     t->scap = m;
     if (!t->pn1 || !t->pr1 || !t->kept || !t->hv || !t->pd1 || !t->pdet || !t->psame || !t->pkeep) { t->scap = 0; return -1; }
     return 0;
+}
+
+/* params: gamma, init_weight, exploration, heuristic_weight;
+   iparams: ids_depth, bellman_outcomes, rollout_depth, policy (0 random, 1 noop, 2 best),
+   extrapolate, max_nodes, token */
+void *ctree_new(const double *cands, int ncand, const double *pool, int npool, const double *noop,
+                const double *probes, const double *params, const long *iparams, uint64_t seed,
+                cands_fn cb) {
+    tree *t = (tree *)calloc(1, sizeof(tree));
+    if (!t) return 0;
+    t->cb = cb;
+    int m = ncand > 0 ? ncand : 1;
+    t->ncand = ncand;
+    t->cands = (double *)malloc(sizeof(double) * NA * (size_t)m);
+    t->npool = npool;
+    t->pool = (double *)malloc(sizeof(double) * NA * (size_t)(npool > 0 ? npool : 1));
+    t->tcap = 1 << 12;
+    t->table = (long *)calloc((size_t)t->tcap, sizeof(long));
+    if (!t->cands || !t->pool || !t->table || ensure_scratch(t, m) < 0) { ctree_free(t); return 0; }
+    if (ncand) memcpy(t->cands, cands, sizeof(double) * NA * (size_t)ncand);
+    if (npool) memcpy(t->pool, pool, sizeof(double) * NA * (size_t)npool);
+    memcpy(t->noop, noop, sizeof(double) * NA);
+    memcpy(t->U1, probes, sizeof(double) * NU); memcpy(t->Z1, probes + NU, sizeof(double) * NZ);
+    memcpy(t->U2, probes + NU + NZ, sizeof(double) * NU); memcpy(t->Z2, probes + 2 * NU + NZ, sizeof(double) * NZ);
+    t->gamma = params[0]; t->w = params[1]; t->expl = params[2]; t->hweight = params[3];
+    t->ids_depth = (int)iparams[0]; t->bellman = (int)iparams[1]; t->rollout_depth = (int)iparams[2];
+    t->policy = (int)iparams[3]; t->extrapolate = (int)iparams[4]; t->max_nodes = iparams[5];
+    t->token = iparams[6];
+    t->rng = seed;
+    return t;
 }
 
 /* the action vector of an action id: a candidate's index, or (with a callback) its

@@ -101,13 +101,13 @@ def test_the_c_tree_plays_a_corpus_domain_with_state_dependent_preconditions() -
     model = load_pair(*ippc_files("IPPC2018", "AcademicAdvising", 1))
 
     def play() -> list[list[str]]:
-        planner, sim = planner_on(model, iterations="60", seed="5", compiled="yes")
+        planner, sim = planner_on(model, iterations="30", seed="5", compiled="yes", ids_depth="2")
         search = planner._thts
         assert search is not None and search.tree is not None and search.tree.dynamic
         rng = np.random.default_rng(3)
         state = sim.initial_state(1)
         chosen = []
-        for turn in range(1, 5):
+        for turn in range(1, 4):
             planner.act(observe(sim, state, turn))
             root = root_of(planner, state, model.horizon - turn + 1)
             assert planner.library is not None
