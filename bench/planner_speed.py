@@ -23,6 +23,10 @@ What it measures
     trials/s over mcts's, both measured in this run. Without PROST_BIN the PROST rows say
     so and the ratio is left out.
 
+    Beside it, mcts with ``compiled=no`` (the Python step and tree, the fallback where no C
+    compiler is found): the "C/Python" column is the compiled engine's trials/s over the
+    Python one's, measured in this run (``--no-python`` leaves it out).
+
     The load average is printed before and after: on a shared machine both planners
     get less than a core, and the figures are only comparable within one run.
 
@@ -114,9 +118,18 @@ async def _session(
         nursery.cancel_scope.cancel()
 
 
-def run_mcts(registry: Registry, instance: str, horizon: int, budget: float, rounds: int) -> Speed:
-    out = Speed("mcts", instance, budget)
-    planner = make_planner("mcts", {"time_per_step": str(budget), "seed": "1"})
+def run_mcts(
+    registry: Registry,
+    instance: str,
+    horizon: int,
+    budget: float,
+    rounds: int,
+    compiled: str = "auto",
+) -> Speed:
+    out = Speed("mcts" if compiled != "no" else "mcts (Python)", instance, budget)
+    planner = make_planner(
+        "mcts", {"time_per_step": str(budget), "seed": "1", "compiled": compiled}
+    )
     assert isinstance(planner, MCTSPlanner)
     session_budget = rounds * horizon * budget * 3 + 60
 
@@ -190,24 +203,27 @@ def _fmt(value: float | None) -> str:
     return "-" if value is None else f"{value:,.0f}"
 
 
-def print_table(rows: list[tuple[Speed, Speed | None]]) -> None:
+def print_table(rows: list[tuple[Speed, Speed | None, Speed | None]]) -> None:
     head = (
         "| instance | s/step | mcts trials/s | mcts nodes/s | mcts sim steps/s "
-        "| PROST trials/s | PROST nodes/s | PROST/mcts trials |"
+        "| mcts (Python) trials/s | C/Python | PROST trials/s | PROST nodes/s "
+        "| PROST/mcts trials |"
     )
     print(head)
-    print("|---|---:|---:|---:|---:|---:|---:|---:|")
-    for m, p in rows:
+    print("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
+    for m, py, p in rows:
         mt = m.rate(m.trials)
+        yt = py.rate(py.trials) if py is not None and py.error is None else None
         pt = p.rate(p.trials) if p is not None and p.error is None else None
         ratio = f"{pt / mt:.1f}x" if pt and mt else "-"
+        c_py = f"{mt / yt:.1f}x" if mt and yt else "-"
         print(
             f"| {m.instance} | {m.budget:g} | {_fmt(mt)} | {_fmt(m.rate(m.nodes))} | "
-            f"{_fmt(m.rate(m.sim_steps))} | {_fmt(pt)} | "
+            f"{_fmt(m.rate(m.sim_steps))} | {_fmt(yt)} | {c_py} | {_fmt(pt)} | "
             f"{_fmt(p.rate(p.nodes) if p is not None and p.error is None else None)} | {ratio} |"
         )
-    for m, p in rows:
-        for s in (m, p):
+    for row in rows:
+        for s in row:
             if s is not None and s.error:
                 print(f"{s.planner} on {s.instance} at {s.budget:g} s: {s.error}")
 
@@ -218,6 +234,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--budgets", default=",".join(f"{b:g}" for b in BUDGETS), help="s/step,...")
     ap.add_argument("--rounds", type=int, default=1, help="rounds per session (default 1)")
     ap.add_argument("--json", type=Path, help="also write the figures here")
+    ap.add_argument("--no-python", action="store_true", help="leave out mcts with compiled=no")
     args = ap.parse_args(argv)
     logging.basicConfig(level=logging.WARNING)
     budgets = [float(b) for b in args.budgets.split(",")]
@@ -226,17 +243,22 @@ def main(argv: list[str] | None = None) -> int:
         print(f"PROST part skipped: set {PROST_BIN_ENV} to PROST's search program to run it")
     load0 = os.getloadavg()
     t0 = time.monotonic()
-    rows: list[tuple[Speed, Speed | None]] = []
+    rows: list[tuple[Speed, Speed | None, Speed | None]] = []
     for spec in args.instances.split(","):
         registry, instance, horizon = load_instance(spec)
         for budget in budgets:
             m = run_mcts(registry, instance, horizon, budget, args.rounds)
+            py = (
+                None
+                if args.no_python
+                else run_mcts(registry, instance, horizon, budget, args.rounds, compiled="no")
+            )
             p = (
                 run_prost(registry, instance, horizon, budget, args.rounds, binary)
                 if binary
                 else None
             )
-            rows.append((m, p))
+            rows.append((m, py, p))
             print(
                 f"# {instance} at {budget:g} s/step: mcts {m.steps} turns, "
                 + (f"PROST {p.steps} steps searched" if p is not None else "no PROST"),
@@ -249,7 +271,14 @@ def main(argv: list[str] | None = None) -> int:
     )
     print_table(rows)
     if args.json:
-        data = [{"mcts": asdict(m), "prost": asdict(p) if p else None} for m, p in rows]
+        data = [
+            {
+                "mcts": asdict(m),
+                "mcts_python": asdict(py) if py else None,
+                "prost": asdict(p) if p else None,
+            }
+            for m, py, p in rows
+        ]
         args.json.write_text(json.dumps({"load": [load0[0], load1[0]], "rows": data}, indent=1))
     return 0
 
