@@ -56,6 +56,14 @@ The action draws of roll-outs and UCB1's tie-breaks use a Python
 `random.Random` seeded from the planner's generator, and the step's draws
 the planner's numpy generator: the same seed gives the same search.
 
+With a compiled step (`rddl.sim.cstep.CStep`, option `compiled`), the
+probing, roll-outs, sampled steps and, for static candidates, IDS run in C
+(`_cprobe`, `_cids`, `_walk`), the draws then from the C generator seeded
+from the planner's; and `ctree.attach` moves the trials themselves into C
+(`planners/mcts/ctree.py`, the same search node for node), after which
+`root`, `search` and `start_round` hand over to it. This Python tree then
+runs only without a compiler, with `compiled = no`, or with `reward_locks`.
+
 Imports the scalar step, the tree-independent parts of the package
 (`actions`, `heuristic`'s reward locks, `options`, `stats`).
 """
