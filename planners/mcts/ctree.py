@@ -23,9 +23,10 @@ and no reward-lock check. Everything else of `THTS` holds, node for node:
 
 The draws come from the step's splitmix64 generator, seeded from the
 planner's: a seed gives the same search. The tree lives in C memory owned
-by the `CTree` (freed with it); a library holds any number of trees, but
-the calls of one process are not meant to run from two threads at once
-(the IDS cache is the library's).
+by the `CTree` (freed with it); a library holds any number of trees. Its
+IDS cache is the library's: a search holds the library's lock
+(`CStep.lock`), so that two sessions of one instance in two threads of a
+process (a Dask worker's) take turns instead of racing.
 
 Imports the compiled step (`rddl.sim.cstep`) and the node type of `thts`
 (whose fields the root's view fills).
@@ -664,10 +665,11 @@ class CTree:
         `iterations`; the root's view is read afterwards."""
         assert isinstance(root, CRoot)
         index = root.index
-        budget = 1e9 if deadline is None else max(0.0, deadline - time.monotonic())
-        rc = self.lib.ctree_search(
-            self._ptr, index, budget, -1 if iterations is None else iterations, self._stats
-        )
+        with self.c.lock:  # (the library's IDS cache: one search of it at a time)
+            budget = 1e9 if deadline is None else max(0.0, deadline - time.monotonic())
+            rc = self.lib.ctree_search(
+                self._ptr, index, budget, -1 if iterations is None else iterations, self._stats
+            )
         if rc < 0:
             raise MemoryError("ctree_search")
         turn.trials += int(self._stats[0])

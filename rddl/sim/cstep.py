@@ -48,6 +48,7 @@ import os
 import shutil
 import subprocess
 import tempfile
+import threading
 from pathlib import Path
 from typing import Any
 
@@ -743,6 +744,17 @@ def _build(source: str) -> Path:
     return lib
 
 
+_LOCKS: dict[str, threading.Lock] = {}
+_LOCKS_GUARD = threading.Lock()
+
+
+def _library_lock(path: Path) -> threading.Lock:
+    """One lock per loaded library: its IDS cache (and the tree's use of it)
+    is the library's, shared by every `CStep` of that library in a process."""
+    with _LOCKS_GUARD:
+        return _LOCKS.setdefault(str(path), threading.Lock())
+
+
 _D = ctypes.POINTER(ctypes.c_double)
 _I = ctypes.POINTER(ctypes.c_int)
 _U64 = ctypes.POINTER(ctypes.c_uint64)
@@ -761,6 +773,11 @@ class CStep:
         except OSError as err:
             raise CUnavailable(f"cannot load {self.path}: {err}") from None
         self.lib = lib
+        self.lock = _library_lock(self.path)
+        """Held around every call that uses the library's IDS cache (`ids_values`,
+        `ids_clear`, a C tree's search): two sessions of one instance in one
+        process's threads (a Dask worker's, say) take turns there instead of
+        racing (ctypes lets go of the GIL during a call)."""
         sizes = (ctypes.c_int * 5)()
         lib.ippc_sizes(sizes)
         self.ns, self.na, self.nu, self.nz, self.nl = list(sizes)
@@ -900,9 +917,10 @@ class CStep:
         `ippc_ids_values`), and the steps made. `token` (an int) names the
         candidates and gamma: a call with another token clears the cache."""
         out = (ctypes.c_double * max(1, n_kept))()
-        steps = self.lib.ippc_ids_values(
-            self._load(state), kept, n_kept, cands, n_cands, depth, gamma, out, token
-        )
+        with self.lock:
+            steps = self.lib.ippc_ids_values(
+                self._load(state), kept, n_kept, cands, n_cands, depth, gamma, out, token
+            )
         return list(out[:n_kept]), int(steps)
 
     def legal(self, state: StateT, act: tuple[Any, ...]) -> bool:
@@ -910,7 +928,8 @@ class CStep:
         return bool(self.lib.ippc_legal(self._load(state), self.action(act)))
 
     def ids_clear(self) -> None:
-        self.lib.ippc_ids_clear()
+        with self.lock:
+            self.lib.ippc_ids_clear()
 
     def walk(
         self, state: StateT, n: int, pool: Any, n_pool: int, gamma: float

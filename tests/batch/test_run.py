@@ -111,11 +111,17 @@ def test_sigkill_half_way_then_resume_gives_the_same_scores(
         assert store.raw("SELECT count(*) FROM sessions")[0][0] == 12
 
 
-def test_a_second_run_on_the_same_database_is_refused(tmp_path: Path, small_reference) -> None:
+def test_a_second_run_on_the_same_database_is_refused(tmp_path: Path) -> None:
     # Two runs on one database would each play every job left (and the second takes the
     # first's running jobs for left over): the second is refused, naming the first.
-    _, _, reference = small_reference
+    # (30 ms a turn instead of 2 or 4 trials: the compiled engine plays the 12 jobs within
+    # the second a new `rddl-batch run` takes to start, and the first run would be over
+    # before the second asks; this way it lasts several seconds)
     path = write_small(tmp_path)
+    text = path.read_text()
+    for trials in ('iterations = "2"', 'iterations = "4"'):
+        text = text.replace(trials, 'time_per_step = "0.03"')
+    path.write_text(text)
     db = tmp_path / "shared.sqlite"
     proc = start_batch(path, db, jobs=1)
     try:
@@ -135,7 +141,6 @@ def test_a_second_run_on_the_same_database_is_refused(tmp_path: Path, small_refe
         cleanup(proc)
     assert proc.returncode == 0, err.decode()
     assert finished_jobs(db) == 12 > before
-    assert outcome(db) == reference
     with BatchStore(db) as store:
         assert store.raw("SELECT count(*) FROM sessions")[0][0] == 12
     # once it has ended, the database is free again: nothing left to play
