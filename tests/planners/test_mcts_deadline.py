@@ -57,6 +57,7 @@ def test_turns_keep_time_per_step_under_a_busy_loop(
     planner.start_round(1)
     busy = subprocess.Popen([sys.executable, "-c", "while True: pass"])
     took: list[float] = []
+    solved: list[bool] = []  # whether the turn's root was solved (thts)
     try:
         time.sleep(0.5)  # the busy loop is running before the first turn
         rng = np.random.default_rng(5)
@@ -75,6 +76,10 @@ def test_turns_keep_time_per_step_under_a_busy_loop(
             t0 = time.monotonic()
             planner.act(obs)
             took.append(time.monotonic() - t0)
+            search = planner._thts
+            if search is not None:
+                root = search.root(search.fast.encode_state(state), horizon - turn + 1)
+                solved.append(root.solved)
             assert planner._last_action is not None
             state = sim.step(state, planner._last_action, rng).next_state
     finally:
@@ -84,9 +89,13 @@ def test_turns_keep_time_per_step_under_a_busy_loop(
     # machine (a fresh-clone CI run saw one 0.31 s turn among nineteen of 0.1 s); the
     # overruns before the deadline work were many turns of 180-680 ms
     ordered = sorted(took)
-    assert ordered[-2] <= BUDGET + SLACK and ordered[-1] <= 4 * BUDGET, (
+    assert ordered[-2] <= BUDGET + SLACK and ordered[-1] <= 4 * BUDGET + SLACK, (
         f"turn times {[round(t, 3) for t in took]} s for a {BUDGET} s budget"
     )
     # and the budget is used, not given away (thts keeps a margin for its last trial,
-    # which the busy loop's share of the CPU widens: medians of 0.077 s were seen in CI)
-    assert float(np.median(took)) >= 0.6 * BUDGET, took
+    # which the busy loop's share of the CPU widens: medians of 0.077 s were seen in CI),
+    # but where the root was solved: the turn then ends at once (the compiled thts engine
+    # solves TriangleTireworld #5's root from the second turn on along this walk)
+    searched = [t for t, done in zip(took, solved or [False] * len(took), strict=True) if not done]
+    assert searched, (took, solved)
+    assert float(np.median(searched)) >= 0.6 * BUDGET, (took, solved)
