@@ -85,11 +85,13 @@ def test_turns_keep_time_per_step_under_a_busy_loop(
     finally:
         busy.kill()
         busy.wait(timeout=10)
-    # every turn within the slack but one, which may meet a scheduling hiccup of the
-    # machine (a fresh-clone CI run saw one 0.31 s turn among nineteen of 0.1 s); the
-    # overruns before the deadline work were many turns of 180-680 ms
+    # every turn within the slack but two, which may meet scheduling hiccups of the
+    # machine (fresh-clone CI runs on 2 cores, one taken by the busy loop, saw one 0.31 s
+    # turn among nineteen of 0.1 s, and once a 0.28 s and a 0.19 s turn among eighteen
+    # of 0.1 s for the wave engine); the overruns before the deadline work were most
+    # turns, of 180-680 ms, which this still catches
     ordered = sorted(took)
-    assert ordered[-2] <= BUDGET + SLACK and ordered[-1] <= 4 * BUDGET + SLACK, (
+    assert ordered[-3] <= BUDGET + SLACK and ordered[-1] <= 4 * BUDGET + SLACK, (
         f"turn times {[round(t, 3) for t in took]} s for a {BUDGET} s budget"
     )
     # and the budget is used, not given away (thts keeps a margin for its last trial,
