@@ -101,18 +101,21 @@ def _row_keys(arrays: list[Array], n: int) -> list[bytes]:
     return [blob[i * width : (i + 1) * width] for i in range(n)]
 
 
-def enumerate_boolean(sim: Simulator, limit: int) -> dict[str, Array] | None:
+def enumerate_boolean(
+    sim: Simulator, limit: int, skip: Iterable[tuple[str, tuple[int, ...]]] = ()
+) -> dict[str, Array] | None:
     """Every joint action of a boolean action space with at most
     max-nondef-actions groundings set (noop first), regardless of the
-    preconditions; None when an action is not boolean or there are more
-    than `limit`."""
+    preconditions, leaving the groundings in `skip` at their default; None
+    when an action is not boolean or there are more than `limit`."""
     noop1 = sim.noop(1)
+    left_out = set(skip)
     grounds: list[tuple[str, tuple[int, ...]]] = []
     for p in sim.action_fluents:
         if p.range != "bool":
             return None
         shape = noop1[p.name].shape[1:]
-        grounds.extend((p.name, idx) for idx in np.ndindex(*shape))
+        grounds.extend((p.name, idx) for idx in np.ndindex(*shape) if (p.name, idx) not in left_out)
     limit_nondef = sim.model.max_nondef_actions
     k_max = len(grounds) if limit_nondef is None else min(limit_nondef, len(grounds))
     count = sum(math.comb(len(grounds), k) for k in range(k_max + 1))
@@ -156,7 +159,13 @@ class ActionChooser:
     """Candidates of new nodes and actions of rollouts, as library rows
     and action arrays (see the module docstring)."""
 
-    def __init__(self, sim: Simulator, settings: Settings, rng: np.random.Generator) -> None:
+    def __init__(
+        self,
+        sim: Simulator,
+        settings: Settings,
+        rng: np.random.Generator,
+        inert: Iterable[tuple[str, tuple[int, ...]]] = (),
+    ) -> None:
         self.sim = sim
         self.settings = settings
         self.rng = rng
@@ -165,7 +174,16 @@ class ActionChooser:
         dom = sim.model.domain
         constraints = [*dom.action_preconditions, *dom.state_action_constraints]
         self.constrained = bool(constraints)
-        enumerated = enumerate_boolean(sim, settings.enumerate_limit)
+        inert = list(inert)
+        self._inert: dict[str, Array] = {}
+        """Per action fluent, where its groundings never matter (`ScalarStep.inert_actions`):
+        candidates and roll-out actions leave those at their default."""
+        defaults = sim.noop(1)
+        for name, idx in inert:
+            mask = self._inert.setdefault(name, np.zeros(defaults[name].shape[1:], dtype=bool))
+            mask[idx] = True
+        self._inert_ok: dict[int, bool] = {}  # library row -> no inert grounding set
+        enumerated = enumerate_boolean(sim, settings.enumerate_limit, inert)
         self.pool: Array | None = None if enumerated is None else self.lib.add(enumerated)
         """Library rows the rollouts draw from (None: coin flips instead)."""
         if (
@@ -212,7 +230,7 @@ class ActionChooser:
                     log.debug("mcts: a node without legal actions: %s", err)
                     rows = np.zeros(0, dtype=np.int64)
                 else:
-                    rows = self.lib.add(arrays)
+                    rows = self._without_inert(self.lib.add(arrays))
                     space = self.solver.space(state, 0)
                     whole = space.complete and space.count <= k
                     if (whole or self.fixed_samples) and len(self._known) < 65536:
@@ -231,11 +249,29 @@ class ActionChooser:
         noop_ok = sim.check_actions(batch, sim.noop(len(states)))
         out = []
         for i in range(len(states)):
-            rows = np.unique(drawn[i])
+            rows = self._without_inert(np.unique(drawn[i]))
             if noop_ok[i] and rows[0] != 0:
                 rows = np.concatenate([[0], rows])
             out.append(self._trim(rows))
         return out
+
+    def _without_inert(self, rows: Array) -> Array:
+        """`rows` less the joint actions that set an inert grounding (each is
+        worth what it is without that grounding); all of them if none is left."""
+        if not self._inert or len(rows) == 0:
+            return rows
+        todo = [int(r) for r in rows.tolist() if int(r) not in self._inert_ok]
+        if todo:
+            acts = self.lib.take(np.array(todo, dtype=np.int64))
+            defaults = self.sim.noop(1)
+            bad = np.zeros(len(todo), dtype=bool)
+            for name, mask in self._inert.items():
+                differs = acts[name][:, mask] != defaults[name][:, mask]
+                bad |= differs.any(axis=1)
+            for r, b in zip(todo, bad.tolist(), strict=True):
+                self._inert_ok[r] = not b
+        keep = np.array([self._inert_ok[int(r)] for r in rows.tolist()], dtype=bool)
+        return rows[keep] if keep.any() else rows
 
     def _trim(self, rows: Array) -> Array:
         """At most `max_actions` candidates: noop (row 0) if there, then a

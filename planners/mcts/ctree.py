@@ -59,7 +59,7 @@ typedef struct {
     int scap;
     double U1[NU], Z1[NZ], U2[NU], Z2[NZ];
     double gamma, w, expl, hweight;
-    int ids_depth, bellman, rollout_depth, policy, extrapolate; long max_nodes, token;
+    int ids_depth, bellman, rollout_depth, policy, extrapolate, ids_deepen, ids_enum; long max_nodes, token;
     uint64_t rng;
     t_node *nodes; double *states; long nn, capn;
     long *table; long tcap;
@@ -107,7 +107,7 @@ static int ensure_scratch(tree *t, int n) {
 
 /* params: gamma, init_weight, exploration, heuristic_weight;
    iparams: ids_depth, bellman_outcomes, rollout_depth, policy (0 random, 1 noop, 2 best),
-   extrapolate, max_nodes, token */
+   extrapolate, max_nodes, token, ids_deepen */
 void *ctree_new(const double *cands, int ncand, const double *pool, int npool, const double *noop,
                 const double *probes, const double *params, const long *iparams, uint64_t seed,
                 cands_fn cb) {
@@ -130,7 +130,7 @@ void *ctree_new(const double *cands, int ncand, const double *pool, int npool, c
     t->gamma = params[0]; t->w = params[1]; t->expl = params[2]; t->hweight = params[3];
     t->ids_depth = (int)iparams[0]; t->bellman = (int)iparams[1]; t->rollout_depth = (int)iparams[2];
     t->policy = (int)iparams[3]; t->extrapolate = (int)iparams[4]; t->max_nodes = iparams[5];
-    t->token = iparams[6];
+    t->token = iparams[6]; t->ids_deepen = (int)iparams[7];
     t->rng = seed;
     return t;
 }
@@ -155,6 +155,8 @@ static int lib_put(tree *t, int row, const double *vec) {
 
 void ctree_reset(void *p) { tree_clear((tree *)p); }
 void ctree_set_ids(void *p, int depth) { ((tree *)p)->ids_depth = depth; }
+/* IDS takes every state's candidates from `ippc_enum` instead of the callback */
+void ctree_set_enum(void *p, int on) { ((tree *)p)->ids_enum = on; }
 
 static uint64_t node_hash(const double *S, int steps) {
     uint64_t h = hash_state(S, NS, 1469598103934665603ULL ^ ((uint64_t)(steps + 1) * 0x9E3779B97F4A7C15ULL));
@@ -275,8 +277,21 @@ static int expand(tree *t, long ni) {
     t->leaves++;
     if (t->ids_depth && steps > 1 && kept > 0) {
         int d = t->ids_depth < steps ? t->ids_depth : steps;
-        IDS_CB = t->cb;
-        t->sim_steps += ippc_ids_values(S, t->kept, kept, t->cands, t->ncand, d, t->gamma, t->hv, t->token);
+        /* PROST's IDS: deepen from 2 and stop at the first depth where an action beats
+           noop (when noop is a kept action), else at the depth learned */
+        int noop_k = -1;
+        if (t->ids_deepen && d > 2)
+            for (int a = 0; a < kept && noop_k < 0; a++)
+                if (same(t->kept + (size_t)a * NA, t->noop, NA)) noop_k = a;
+        IDS_CB = t->ids_enum ? enum_cb : t->cb;
+        for (int upto = d, dd = noop_k >= 0 ? 2 : d; ; dd++) {
+            d = dd;
+            t->sim_steps += ippc_ids_values(S, t->kept, kept, t->cands, t->ncand, d, t->gamma, t->hv, t->token);
+            if (d >= upto) break;
+            int better = 0;
+            for (int a = 0; a < kept && !better; a++) if (a != noop_k && t->hv[a] > t->hv[noop_k]) better = 1;
+            if (better) break;
+        }
         IDS_CB = 0;
         double lo = t->hv[0], hi = t->hv[0];
         for (int a = 1; a < kept; a++) { if (t->hv[a] < lo) lo = t->hv[a]; if (t->hv[a] > hi) hi = t->hv[a]; }
@@ -511,6 +526,7 @@ class CTree:
         lib.ctree_free.argtypes = [ctypes.c_void_p]
         lib.ctree_reset.argtypes = [ctypes.c_void_p]
         lib.ctree_set_ids.argtypes = [ctypes.c_void_p, ctypes.c_int]
+        lib.ctree_set_enum.argtypes = [ctypes.c_void_p, ctypes.c_int]
         lib.ctree_root.argtypes = [ctypes.c_void_p, _D, ctypes.c_int]
         lib.ctree_root.restype = ctypes.c_long
         lib.ctree_search.argtypes = [
@@ -547,7 +563,7 @@ class CTree:
         params = (ctypes.c_double * 4)(
             gamma, settings.init_weight, settings.exploration, settings.heuristic_weight
         )
-        iparams = (ctypes.c_long * 7)(
+        iparams = (ctypes.c_long * 8)(
             0,
             settings.bellman_outcomes,
             settings.rollout_depth,
@@ -555,6 +571,7 @@ class CTree:
             int(settings.extrapolate),
             settings.max_nodes,
             token,
+            int(settings.ids_deepen),
         )
         pool = pool or []
         self._ptr = lib.ctree_new(
@@ -699,4 +716,6 @@ def attach(search: THTS) -> bool:
             c, [], [], *common, candidates=search._candidates, action_of=search._tuple
         )
     search.tree.set_ids_depth(search.ids_depth)
+    if search._cenum:
+        search.tree.lib.ctree_set_enum(search.tree._ptr, 1)
     return True

@@ -13,7 +13,7 @@ import dataclasses
 import gc
 import logging
 import time
-from typing import ClassVar
+from typing import Any, ClassVar
 
 import numpy as np
 
@@ -137,7 +137,10 @@ class MCTSPlanner(Planner):
         # are the legal joint actions up to 8 x max_actions (TriangleTireworld
         # #5 has 813, of which a state keeps a handful) before a sample.
         chooser = ActionChooser(
-            sim, dataclasses.replace(st, max_actions=8 * st.max_actions), self.rng
+            sim,
+            dataclasses.replace(st, max_actions=8 * st.max_actions),
+            self.rng,
+            inert=scalar.inert_actions,
         )
         self._chooser = chooser
         cstep = None
@@ -150,14 +153,24 @@ class MCTSPlanner(Planner):
                 log.info("mcts: %s: the Python step (%s)", session.instance, err)
         self.compiled = cstep is not None
         search = THTS(sim, scalar, chooser, st, self.rng, self._discount(), locks, cstep)
+        # random-walk states (their own generator: the search's draws stay those of
+        # the seed) to check the legal actions in C on and to learn IDS's depth on
+        states: list[tuple[Any, ...]] = []
+        if cstep is not None and (st.heuristic == "ids" or not search._static):
+            rng = np.random.default_rng(None if seed is None else [seed, 1])
+            train = training_states(sim, rng)
+            states = [scalar.encode_state(train, i) for i in range(min(train.batch, 16))]
+        if search.setup_enum(states):
+            log.info("mcts: %s: the legal actions of a state in C", session.instance)
         if st.heuristic == "ids":
             fixed = st.ids_depth or (5 if st.iterations is not None else 0)
             if fixed:
                 search.ids_depth = fixed
             else:
-                rng = np.random.default_rng(None if seed is None else [seed, 1])
-                train = training_states(sim, rng)
-                states = [scalar.encode_state(train, i) for i in range(min(train.batch, 16))]
+                if not states:
+                    rng = np.random.default_rng(None if seed is None else [seed, 1])
+                    train = training_states(sim, rng)
+                    states = [scalar.encode_state(train, i) for i in range(min(train.batch, 16))]
                 depth = search.learn_ids(states, session.model.horizon or 40, st.ids_timeout)
                 log.info("mcts: %s: IDS depth %d", session.instance, depth)
         if attach(search):

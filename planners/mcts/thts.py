@@ -296,6 +296,12 @@ class THTS:
             self._cstatic: Any = None  # the static candidates as one C block
             self._probe_draws = probe_draws
         self.tree: Any = None  # the trials in C (`ctree.attach`)
+        self._cenum = False  # the legal candidates of a state from C (`setup_enum`)
+        self._enum_keys: list[tuple[str, tuple[int, ...]]] = []
+        self._enum_index: dict[tuple[str, tuple[int, ...]], int] = {}
+        self._enum_vals: list[float] = []
+        self._enum_rows: dict[tuple[int, ...], int] = {}
+        self._enum_cache: dict[StateT, list[int]] = {}
 
     # -- actions -------------------------------------------------------------
 
@@ -305,9 +311,81 @@ class THTS:
             t = self._tuples[row] = self.fast.encode_actions(self.chooser.lib.take(np.array([row])))
         return t
 
+    def setup_enum(self, states: list[StateT]) -> bool:
+        """Find the legal joint actions of each state in C (`CStep.enumerate`)
+        instead of with the Python solver, where the candidates depend on the
+        state, the actions are boolean and the C `legal` checks the
+        constraints; kept only if on each of `states` C finds the very set
+        the solver does (C's walk is complete where the constraints are
+        monotone). Returns whether it is on."""
+        c = self.c
+        sim = self.sim
+        if c is None or self._static or not c.has_legal:
+            return False
+        if any(p.range != "bool" for p in sim.action_fluents) or self.chooser.solver is None:
+            return False
+        inert = set(self.fast.inert_actions)
+        noop = self.fast.noop
+        keys = [(i, key) for i, key in enumerate(self.fast.action_keys) if key not in inert]
+        grounds = [(i, 0.0 if noop[i] else 1.0) for i, _ in keys]
+        n_max = sim.model.max_nondef_actions
+        k = len(grounds) if n_max is None else min(n_max, len(grounds))
+        cap = self.chooser.settings.max_actions
+        c.enum_setup(grounds, k, cap)
+        self._enum_keys = [key for _, key in keys]
+        self._enum_index = {key: g for g, key in enumerate(self._enum_keys)}
+        self._enum_vals = [v for _, v in grounds]
+        checked = 0
+        for s in states:
+            n, combos = c.enumerate(s, cap)
+            if n < 0 or n > cap:
+                continue
+            decoded = self.fast.decode_state(s)
+            space = self.chooser.solver.space(decoded, 0) if self.chooser.solver else None
+            if space is None or not space.complete or space.count > cap:
+                continue
+            rows = self.chooser.candidates([decoded])[0]
+            acts = self.chooser.lib.take(rows)
+            defaults = sim.noop(1)
+            theirs = set()
+            for r in range(len(rows)):
+                on = []
+                for name, arr in acts.items():
+                    for idx in np.argwhere(arr[r : r + 1] != defaults[name]):
+                        on.append(self._enum_index.get((name, tuple(int(x) for x in idx[1:])), -1))
+                theirs.add(tuple(sorted(on)))
+            if theirs != set(combos):
+                return False
+            checked += 1
+        self._cenum = checked > 0
+        return self._cenum
+
+    def _combo_row(self, combo: tuple[int, ...]) -> int:
+        """The library row of the joint action setting these groundings."""
+        row = self._enum_rows.get(combo)
+        if row is None:
+            acts = self.sim.noop(1)
+            for g in combo:
+                name, idx = self._enum_keys[g]
+                acts[name][(0, *idx)] = self._enum_vals[g]
+            row = self._enum_rows[combo] = int(self.chooser.lib.add(acts)[0])
+        return row
+
     def _candidates(self, state: StateT) -> list[int]:
         if self._static and self._static_rows is not None:
             return self._static_rows
+        if self._cenum:
+            got = self._enum_cache.get(state)
+            if got is not None:
+                return got
+            assert self.c is not None
+            n, combos = self.c.enumerate(state, self.chooser.settings.max_actions)
+            if 0 <= n <= self.chooser.settings.max_actions:
+                got = [self._combo_row(cb) for cb in combos]
+                if len(self._enum_cache) >= 65536:
+                    self._enum_cache.clear()
+                self._enum_cache[state] = got
+                return got
         rows = self.chooser.candidates([self.fast.decode_state(state)])[0].tolist()
         if self._static:
             self._static_rows = rows
@@ -634,33 +712,51 @@ class THTS:
         value of its successor on the most-likely determinisation, scaled to
         the steps left at the same reward a step, times `heuristic_weight`."""
         steps = node.steps
-        d = min(self.ids_depth, steps)
-        out = []
-        step = self.fast.step
-        state = node.state
-        if self.c is not None and self._static:
-            if check:
-                self._check()
-            out = self._cids(state, [k[1] for k in kept], d)
-        else:
-            if self.c is not None:
-                state = self.c.typed(state)  # the Python step indexes tables by values
-            for _, act, _, _, _, _, _ in kept:
-                if check:
-                    self._check()
-                nxt, r, done = step(state, act, self.likely)  # type: ignore[arg-type]
-                self.turn.sim_steps += 1
-                v = r if done or d <= 1 else r + self.gamma * self._ids(nxt, d - 1)
-                out.append(v)
+        upto = min(self.ids_depth, steps)
+        # PROST's IDS: deepen from 2 and stop at the first depth where an action
+        # beats noop (when noop is a kept action), else search at the depth learned
+        noop_k = -1
+        if self.st.ids_deepen and upto > 2:
+            noop_k = next((i for i, k in enumerate(kept) if k[1] == self.fast.noop), -1)
+        d = 2 if noop_k >= 0 else upto
+        while True:
+            out = self._ids_at(node.state, kept, d, check)
+            if d >= upto or any(v > out[noop_k] for i, v in enumerate(out) if i != noop_k):
+                break
+            d += 1
         if max(out) == min(out) and len(out) > 1:
             return None
         scale = self.st.heuristic_weight * (steps / d if self.gamma == 1.0 else 1.0)
         return [v * scale for v in out]
 
+    def _ids_at(self, state: StateT, kept: list[Any], d: int, check: bool) -> list[float]:
+        """The kept actions' depth-`d` IDS values (unscaled)."""
+        if self.c is not None and (self._static or self._cenum):
+            if check:
+                self._check()
+            return self._cids(state, [k[1] for k in kept], d)
+        out = []
+        step = self.fast.step
+        if self.c is not None:
+            state = self.c.typed(state)  # the Python step indexes tables by values
+        for _, act, _, _, _, _, _ in kept:
+            if check:
+                self._check()
+            nxt, r, done = step(state, act, self.likely)  # type: ignore[arg-type]
+            self.turn.sim_steps += 1
+            out.append(r if done or d <= 1 else r + self.gamma * self._ids(nxt, d - 1))
+        return out
+
     def _cids(self, state: StateT, acts: list[ActT], depth: int) -> list[float]:
         """`acts`' IDS values in C (static candidates only)."""
         c = self.c
         assert c is not None
+        if self._cenum:
+            values, made = c.ids_values_enum(
+                state, c.block(acts), len(acts), depth, self.gamma, self._token
+            )
+            self.turn.sim_steps += made
+            return values
         if self._cstatic is None:
             rows = self._candidates(state)
             self._cstatic = c.block([self._tuple(r) for r in rows])
@@ -706,13 +802,40 @@ class THTS:
         depth 2 does). CPU time, not the wall clock: on a loaded machine the
         wall clock learned depth 0 (no IDS) one session and 3 the next."""
         depth = 0
+        c_static = self.c is not None and self._static
+        for s in states:
+            # the candidates (and, in C, their block) once, before anything is timed:
+            # finding them is not part of the search an IDS depth costs
+            self._candidates(s)
+        if c_static and states:
+            self._cids(states[0], [], 0)
+        blocks = {}
+        if self.c is not None and self._cenum:
+            blocks = {
+                i: self.c.block([self._tuple(r) for r in self._candidates(s)])
+                for i, s in enumerate(states)
+            }
         for d in range(2, min(15, steps) + 1):
             self._ids_cache.clear()
             t0 = time.process_time()
-            if self.c is not None and self._static:
+            if c_static:
+                assert self.c is not None
                 self.c.ids_clear()
+                n = len(self._static_rows or [])
                 for s in states:
-                    self._cids(s, [self._tuple(r) for r in self._candidates(s)], d)
+                    _, made = self.c.ids_values(
+                        s, self._cstatic, n, self._cstatic, n, d, self.gamma, self._token
+                    )
+                    self.turn.sim_steps += made
+            elif blocks:
+                assert self.c is not None
+                self.c.ids_clear()
+                for i, s in enumerate(states):
+                    n = len(self._candidates(s))
+                    _, made = self.c.ids_values_enum(
+                        s, blocks[i], n, d, self.gamma, self._token
+                    )
+                    self.turn.sim_steps += made
             else:
                 for s in states:
                     for row in self._candidates(s):

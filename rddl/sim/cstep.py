@@ -629,6 +629,104 @@ long ippc_ids_values(const double *S, const double *KEPT, int n, const double *C
     return ids_steps;
 }
 
+/* ---- the legal joint actions of a state ---- */
+/* The groundings a joint action may set (EN_POS[g] to EN_VAL[g], the others at
+   noop's values), at most EN_K of them at once; EN_LIMIT: most actions counted. */
+static double *EN_NOOP = 0, *EN_VAL = 0;
+static int *EN_POS = 0;
+static int EN_NG = 0, EN_K = 0, EN_LIMIT = 0, EN_READY = 0;
+
+int ippc_has_legal(void) { return HAS_LEGAL; }
+
+int ippc_enum_setup(const double *NOOP, const int *POS, const double *VAL, int ng, int k, int limit) {
+    free(EN_NOOP); free(EN_VAL); free(EN_POS);
+    EN_NOOP = (double *)malloc(sizeof(double) * NA);
+    EN_VAL = (double *)malloc(sizeof(double) * (size_t)(ng > 0 ? ng : 1));
+    EN_POS = (int *)malloc(sizeof(int) * (size_t)(ng > 0 ? ng : 1));
+    EN_READY = 0;
+    if (!EN_NOOP || !EN_VAL || !EN_POS) return -1;
+    memcpy(EN_NOOP, NOOP, sizeof(double) * NA);
+    if (ng) { memcpy(EN_VAL, VAL, sizeof(double) * (size_t)ng); memcpy(EN_POS, POS, sizeof(int) * (size_t)ng); }
+    EN_NG = ng; EN_K = k; EN_LIMIT = limit; EN_READY = 1;
+    return 0;
+}
+
+typedef struct { const double *S; double *A; int *L; int nl; int *chosen; int count, cap; int *G; double *OUT; } en_walk;
+
+static void en_emit(en_walk *w, int size) {
+    if (w->count < w->cap) {
+        if (w->G) for (int i = 0; i < EN_K; i++) w->G[(size_t)w->count * EN_K + i] = i < size ? w->chosen[i] : -1;
+        if (w->OUT) memcpy(w->OUT + (size_t)w->count * NA, w->A, sizeof(double) * NA);
+    }
+    w->count++;
+}
+
+static void en_rec(en_walk *w, int start, int size) {
+    for (int i = start; i < w->nl && w->count <= EN_LIMIT; i++) {
+        int g = w->L[i], p = EN_POS[g];
+        double keep = w->A[p];
+        w->A[p] = EN_VAL[g];
+        w->chosen[size] = g;
+        /* (one grounding alone was checked already) */
+        if (size == 0 || legal(w->S, w->A)) {
+            en_emit(w, size + 1);
+            if (size + 1 < EN_K) en_rec(w, i + 1, size + 1);
+        }
+        w->A[p] = keep;
+    }
+}
+
+/* The legal joint actions of S (noop first, then by the groundings set, in
+   order) built from the groundings that are legal alone, and extended only
+   while legal: complete where the constraints are monotone (every part of a
+   legal joint action is legal), which the caller checks against the solver.
+   The first `cap` are written (their groundings into G, EN_K a row, -1 after
+   the last; their vectors into OUT; either may be NULL). Returns how many
+   there are (EN_LIMIT + 1: more than EN_LIMIT), or -1 where noop is illegal
+   or nothing was set up. */
+int ippc_enum(const double *S, int cap, int *G, double *OUT) {
+    if (!EN_READY) return -1;
+    double A[NA];
+    memcpy(A, EN_NOOP, sizeof(double) * NA);
+    if (!legal(S, A)) return -1;
+    int *L = (int *)malloc(sizeof(int) * (size_t)(EN_NG > 0 ? EN_NG : 1));
+    int chosen[EN_K > 0 ? EN_K : 1];
+    if (!L) return -1;
+    int nl = 0;
+    for (int g = 0; g < EN_NG; g++) {
+        int p = EN_POS[g];
+        double keep = A[p];
+        A[p] = EN_VAL[g];
+        if (legal(S, A)) L[nl++] = g;
+        A[p] = keep;
+    }
+    en_walk w = {S, A, L, nl, chosen, 0, cap, G, OUT};
+    en_emit(&w, 0);
+    if (EN_K > 0) en_rec(&w, 0, 0);
+    free(L);
+    return w.count;
+}
+
+/* `cands_fn` over `ippc_enum` (for IDS): the first EN_LIMIT where there are more. */
+static int enum_cb(const double *S, double *OUT, int cap, int *IDX) {
+    int n = ippc_enum(S, cap, 0, OUT);
+    if (n < 0) return 0;
+    if (n > EN_LIMIT) n = EN_LIMIT;
+    if (n > cap) return -n;
+    for (int i = 0; i < n; i++) IDX[i] = -1;
+    return n;
+}
+
+/* `ippc_ids_values` with the candidates of every state from `ippc_enum`. */
+long ippc_ids_values_enum(const double *S, const double *KEPT, int n, int depth, double gamma,
+                          double *OUT, long token) {
+    cands_fn before = IDS_CB;
+    IDS_CB = enum_cb;
+    long steps = ippc_ids_values(S, KEPT, n, 0, 0, depth, gamma, OUT, token);
+    IDS_CB = before;
+    return steps;
+}
+
 /* A roll-out of up to `n` steps from S: noop (npool 0) or actions drawn
    uniformly from POOL (redrawn up to 8 times where illegal in the state,
    then noop). *TAKEN: the steps made, negated when the run ended. */
@@ -682,9 +780,11 @@ def c_source(scalar: ScalarStep, extra: str = "") -> str:
     body = tr.function()
     slots = tr.slots
     legal = "    (void)S; (void)A; return 1;"
+    has_legal = 0
     if scalar.legal_source is not None:
         try:
             legal = "    (void)S; (void)A;\n" + tr.function(scalar.legal_source)
+            has_legal = 1
         except CUnavailable:
             pass  # (roll-outs then draw without the check, as the Python step's do)
     ns, na = len(scalar.state_keys), len(scalar.action_keys)
@@ -695,6 +795,7 @@ def c_source(scalar: ScalarStep, extra: str = "") -> str:
         f"#define NU {max(scalar.n_uniforms, 1)}",
         f"#define NZ {max(scalar.n_normals, 1)}",
         f"#define NL {max(slots, 1)}",
+        f"#define HAS_LEGAL {has_legal}",
         *tr.table_defs,
         "static int legal(const double *S, const double *A) {",
         legal,
@@ -744,15 +845,17 @@ def _build(source: str) -> Path:
     return lib
 
 
-_LOCKS: dict[str, threading.Lock] = {}
+_LOCKS: dict[str, threading.RLock] = {}
 _LOCKS_GUARD = threading.Lock()
 
 
-def _library_lock(path: Path) -> threading.Lock:
-    """One lock per loaded library: its IDS cache (and the tree's use of it)
-    is the library's, shared by every `CStep` of that library in a process."""
+def _library_lock(path: Path) -> threading.RLock:
+    """One lock per loaded library: its IDS cache and legal-action walk (and
+    the tree's use of them) are the library's, shared by every `CStep` of
+    that library in a process. Re-entrant: a C tree's search holds it while
+    it calls back into Python, which may enumerate a state's actions."""
     with _LOCKS_GUARD:
-        return _LOCKS.setdefault(str(path), threading.Lock())
+        return _LOCKS.setdefault(str(path), threading.RLock())
 
 
 _D = ctypes.POINTER(ctypes.c_double)
@@ -802,6 +905,22 @@ class CStep:
         lib.ippc_walk.restype = ctypes.c_double
         lib.ippc_ids_clear.argtypes = []
         lib.ippc_legal.argtypes = [_D, _D]
+        lib.ippc_enum_setup.argtypes = [_D, _I, _D, ctypes.c_int, ctypes.c_int, ctypes.c_int]
+        lib.ippc_enum.argtypes = [_D, ctypes.c_int, _I, _D]
+        lib.ippc_ids_values_enum.argtypes = [
+            _D,
+            _D,
+            ctypes.c_int,
+            ctypes.c_int,
+            ctypes.c_double,
+            _D,
+            ctypes.c_long,
+        ]
+        lib.ippc_ids_values_enum.restype = ctypes.c_long
+        self.has_legal = bool(lib.ippc_has_legal())
+        """Whether the C `legal` checks the model's constraints (False: they
+        could not be translated, and it passes everything)."""
+        self._enum_k = 0
         self.rng = ctypes.c_uint64(seed & (2**64 - 1))
         self._S = (ctypes.c_double * self.ns)()
         self._N = (ctypes.c_double * self.ns)()
@@ -926,6 +1045,43 @@ class CStep:
     def legal(self, state: StateT, act: tuple[Any, ...]) -> bool:
         """The C `legal` (see `ScalarStep.legal`; True where there is none)."""
         return bool(self.lib.ippc_legal(self._load(state), self.action(act)))
+
+    def enum_setup(self, grounds: list[tuple[int, float]], k: int, limit: int) -> None:
+        """What `enumerate` may set: (action slot, value) pairs, at most `k` at
+        once, counting up to `limit` joint actions."""
+        n = len(grounds)
+        pos = (ctypes.c_int * max(1, n))(*[g for g, _ in grounds])
+        val = (ctypes.c_double * max(1, n))(*[float(v) for _, v in grounds])
+        with self.lock:
+            if self.lib.ippc_enum_setup(self.noop, pos, val, n, k, limit) < 0:
+                raise MemoryError("ippc_enum_setup")
+        self._enum_k = k
+
+    def enumerate(self, state: StateT, cap: int) -> tuple[int, list[tuple[int, ...]]]:
+        """The legal joint actions of `state` built by C (see `ippc_enum`):
+        how many there are (-1: noop illegal, or more than the limit: the
+        limit plus one), and the first `cap`, each as the indices (into
+        `enum_setup`'s list) of the groundings it sets."""
+        k = max(1, self._enum_k)
+        g = (ctypes.c_int * (k * max(1, cap)))()
+        with self.lock:
+            n = int(self.lib.ippc_enum(self._load(state), cap, g, None))
+        rows = []
+        for i in range(min(max(n, 0), cap)):
+            row = g[i * k : (i + 1) * k]
+            rows.append(tuple(x for x in row if x >= 0) if self._enum_k else ())
+        return n, rows
+
+    def ids_values_enum(
+        self, state: StateT, kept: Any, n_kept: int, depth: int, gamma: float, token: int
+    ) -> tuple[list[float], int]:
+        """`ids_values` with every state's candidates from `enumerate`."""
+        out = (ctypes.c_double * max(1, n_kept))()
+        with self.lock:
+            steps = self.lib.ippc_ids_values_enum(
+                self._load(state), kept, n_kept, depth, gamma, out, token
+            )
+        return list(out[:n_kept]), int(steps)
 
     def ids_clear(self) -> None:
         with self.lock:

@@ -45,6 +45,7 @@ from __future__ import annotations
 
 import itertools
 import math
+import re
 from collections.abc import Callable, Mapping
 from typing import TYPE_CHECKING, Any
 
@@ -744,6 +745,16 @@ class ScalarStep:
         """`step(state, actions, rng)` -> (next state, reward, done)."""
         self.noop = self.encode_actions(sim.noop(1))
         """Every action at its default."""
+        body = self.source.split(" = A\n", 1)[-1] if self.action_keys else ""
+        read = {int(m) for m in re.findall(r"\ba(\d+)\b", body)}
+        self.inert_actions: list[tuple[str, tuple[int, ...]]] = [
+            key for i, key in enumerate(self.action_keys) if i not in read
+        ]
+        """The action groundings the step never reads once the non-fluents are
+        folded in (TriangleTireworld's `move-car` between locations with no
+        road): whatever their value, the next state and the reward are
+        noop's, so a joint action that sets one is worth the same one
+        without it (PROST's parser drops them likewise)."""
         self._state_shapes = {p.name: sim._compiler.shape_of(p) for p in sim.state_fluents}
         self._state_dtypes = {p.name: sim._dtype(p) for p in sim.state_fluents}
 
