@@ -832,9 +832,7 @@ class THTS:
                 self.c.ids_clear()
                 for i, s in enumerate(states):
                     n = len(self._candidates(s))
-                    _, made = self.c.ids_values_enum(
-                        s, blocks[i], n, d, self.gamma, self._token
-                    )
+                    _, made = self.c.ids_values_enum(s, blocks[i], n, d, self.gamma, self._token)
                     self.turn.sim_steps += made
             else:
                 for s in states:
