@@ -59,7 +59,7 @@ typedef struct {
     int scap;
     double U1[NU], Z1[NZ], U2[NU], Z2[NZ];
     double gamma, w, expl, hweight;
-    int ids_depth, bellman, rollout_depth, policy, extrapolate, ids_deepen, ids_enum; long max_nodes, token;
+    int ids_depth, bellman, rollout_depth, policy, extrapolate, ids_deepen, enum_on; long max_nodes, token;
     uint64_t rng;
     t_node *nodes; double *states; long nn, capn;
     long *table; long tcap;
@@ -156,7 +156,7 @@ static int lib_put(tree *t, int row, const double *vec) {
 void ctree_reset(void *p) { tree_clear((tree *)p); }
 void ctree_set_ids(void *p, int depth) { ((tree *)p)->ids_depth = depth; }
 /* IDS takes every state's candidates from `ippc_enum` instead of the callback */
-void ctree_set_enum(void *p, int on) { ((tree *)p)->ids_enum = on; }
+void ctree_set_enum(void *p, int on) { ((tree *)p)->enum_on = on; }
 
 static uint64_t node_hash(const double *S, int steps) {
     uint64_t h = hash_state(S, NS, 1469598103934665603ULL ^ ((uint64_t)(steps + 1) * 0x9E3779B97F4A7C15ULL));
@@ -213,7 +213,10 @@ static double extrapolated(double total, int taken, int steps, double g) {
 static double walk1(tree *t, const double *S, int steps, int random_policy) {
     int n = t->rollout_depth == 0 ? steps : (t->rollout_depth < steps ? t->rollout_depth : steps);
     int taken = 0;
-    double total = ippc_walk(S, n, t->pool, random_policy ? t->npool : 0, t->noop, t->gamma, &t->rng, &taken);
+    double total = random_policy && t->npool == 0 && t->enum_on
+        /* no pool of joint actions (too many), but the state's legal ones are walked in C */
+        ? ippc_walk_enum(S, n, t->gamma, &t->rng, &taken)
+        : ippc_walk(S, n, t->pool, random_policy ? t->npool : 0, t->noop, t->gamma, &t->rng, &taken);
     int ended = taken < 0;
     if (ended) taken = -taken;
     t->sim_steps += taken;
@@ -283,7 +286,7 @@ static int expand(tree *t, long ni) {
         if (t->ids_deepen && d > 2)
             for (int a = 0; a < kept && noop_k < 0; a++)
                 if (same(t->kept + (size_t)a * NA, t->noop, NA)) noop_k = a;
-        IDS_CB = t->ids_enum ? enum_cb : t->cb;
+        IDS_CB = t->enum_on ? enum_cb : t->cb;
         for (int upto = d, dd = noop_k >= 0 ? 2 : d; ; dd++) {
             d = dd;
             t->sim_steps += ippc_ids_values(S, t->kept, kept, t->cands, t->ncand, d, t->gamma, t->hv, t->token);

@@ -717,6 +717,39 @@ static int enum_cb(const double *S, double *OUT, int cap, int *IDX) {
     return n;
 }
 
+/* A roll-out of up to `n` steps from S where each step's action is noop or one
+   grounding of `ippc_enum_setup`'s, drawn uniformly among the ng + 1 and drawn
+   again (up to 8 times) while it is illegal in the state, then noop: about
+   uniform over noop and the groundings legal alone, at a few `legal` calls a
+   step. As `ippc_walk` otherwise. */
+double ippc_walk_enum(const double *S, int n, double gamma, uint64_t *rng, int *TAKEN) {
+    double s[NS + 1], nx[NS + 1], U[NU + 1], Z[NZ + 1], l[NL + 1], A[NA];
+    memcpy(s, S, sizeof(double) * NS);
+    double total = 0.0, disc = 1.0;
+    int taken = 0, ended = 0;
+    for (int t = 0; t < n; t++) {
+        memcpy(A, EN_NOOP, sizeof(double) * NA);
+        if (EN_READY && EN_NG > 0) {
+            for (int k = 0; k < 8; k++) {
+                uint64_t pick = next64(rng) % (uint64_t)(EN_NG + 1);
+                if (pick == 0) break;                       /* noop */
+                int p = EN_POS[pick - 1];
+                A[p] = EN_VAL[pick - 1];
+                if (legal(s, A)) break;
+                A[p] = EN_NOOP[p];
+            }
+        }
+        double r = 0.0, d = 0.0;
+        draws(rng, U, Z);
+        step(s, A, U, Z, nx, &r, &d, l);
+        total += disc * r; disc *= gamma; taken++;
+        memcpy(s, nx, sizeof(double) * NS);
+        if (d != 0) { ended = 1; break; }
+    }
+    *TAKEN = ended ? -taken : taken;
+    return total;
+}
+
 /* `ippc_ids_values` with the candidates of every state from `ippc_enum`. */
 long ippc_ids_values_enum(const double *S, const double *KEPT, int n, int depth, double gamma,
                           double *OUT, long token) {
@@ -917,6 +950,8 @@ class CStep:
             ctypes.c_long,
         ]
         lib.ippc_ids_values_enum.restype = ctypes.c_long
+        lib.ippc_walk_enum.argtypes = [_D, ctypes.c_int, ctypes.c_double, _U64, _I]
+        lib.ippc_walk_enum.restype = ctypes.c_double
         self.has_legal = bool(lib.ippc_has_legal())
         """Whether the C `legal` checks the model's constraints (False: they
         could not be translated, and it passes everything)."""
@@ -1102,5 +1137,15 @@ class CStep:
             ctypes.byref(self.rng),
             ctypes.byref(self._taken),
         )
+        taken = int(self._taken.value)
+        return float(total), abs(taken), taken < 0
+
+    def walk_enum(self, state: StateT, n: int, gamma: float) -> tuple[float, int, bool]:
+        """A roll-out of up to `n` steps whose actions are noop or one grounding
+        of `enum_setup`'s legal in the state (see `ippc_walk_enum`), as `walk`."""
+        with self.lock:
+            total = self.lib.ippc_walk_enum(
+                self._load(state), n, gamma, ctypes.byref(self.rng), ctypes.byref(self._taken)
+            )
         taken = int(self._taken.value)
         return float(total), abs(taken), taken < 0

@@ -282,3 +282,54 @@ def test_the_c_tree_values_the_root_as_the_python_tree(tmp_path: Path, deepen: s
         root = root_of(planner, state, 8)
         values.append(sorted(zip(root.rows, np.round(root.q, 9), strict=True)))
     assert values[0] == values[1]
+
+
+# -- roll-outs over the legal actions of a state, in C ----------------------------------
+
+GUARDED = """
+domain tiny_guarded {
+    requirements = { concurrent, preconditions };
+    pvariables {
+        key : { state-fluent, bool, default = false };
+        small : { action-fluent, bool, default = false };
+        big : { action-fluent, bool, default = false };
+    };
+    cpfs {
+        key' = key;
+    };
+    // what a step's reward says about its action: 0 noop, 1 small, 100 big
+    reward = 1 * small + 100 * big;
+    action-preconditions {
+        big => key;
+    };
+}
+instance tiny_guarded_inst {
+    domain = tiny_guarded;
+    init-state { key = false; };
+    max-nondef-actions = 1;
+    horizon = 3;
+    discount = 1.0;
+}
+"""
+
+
+@needs_cc
+def test_c_rollouts_draw_noop_and_the_groundings_legal_in_the_state(tmp_path: Path) -> None:
+    """Without a key `big` is illegal: one-step roll-outs give 0 (noop) or 1
+    (small), both, and never 100; with the key all three come up."""
+    path = tmp_path / "guarded.rddl"
+    path.write_text(GUARDED)
+    model = load_model(path)
+    planner, sim = planner_on(model, iterations="10", seed="1", compiled="yes")
+    search = planner._thts
+    assert search is not None and search._cenum and search.c is not None
+    state = sim.initial_state(1)
+    locked = search.fast.encode_state(state)
+    state.values["key"][0] = True
+    opened = search.fast.encode_state(state)
+    seen_locked = {search.c.walk_enum(locked, 1, 1.0)[0] for _ in range(300)}
+    seen_opened = {search.c.walk_enum(opened, 1, 1.0)[0] for _ in range(300)}
+    assert seen_locked == {0.0, 1.0}
+    assert seen_opened == {0.0, 1.0, 100.0}
+    total, taken, ended = search.c.walk_enum(opened, 3, 1.0)
+    assert taken == 3 and not ended and total in {0, 1, 2, 3, 100, 101, 102, 200, 201, 300}
