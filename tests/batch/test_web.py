@@ -105,7 +105,10 @@ async def test_the_page_follows_a_run_and_escapes_what_it_shows(tmp_path: Path) 
             overall = [c for e in seen for c in cells_of(e, "overall").values()]
             assert {c["planner"] for c in overall} == {"noop", "random", "mcts", "broken"}
             figures = [e["fields"]["figures"] for e in seen if "figures" in e.get("fields", {})]
-            assert len(figures) >= 6 and figures == sorted(figures)  # redrawn after each job
+            # redrawn as the jobs finish, in order; the page sends a field's last value a
+            # flush (0.25 s), so jobs that end within one flush show as one redraw (a
+            # fresh-clone CI run saw 5 for the 8 jobs once mcts solved print_jobs's roots)
+            assert len(set(figures)) >= 3 and figures == sorted(figures)
         snap = live.snapshot()
         assert snap["counts"]["finished"] == 6 and snap["counts"]["failed"] == 2
         # the page as it is now, every name escaped
