@@ -1,8 +1,9 @@
 """What the thts engine's candidates are made of: inert action groundings
 (never read by the step once the non-fluents are folded in) left out, the
 legal joint actions of a state walked in C (`CStep.enumerate`, used only
-where it finds what the Python solver finds), and IDS deepening from 2
-(option `ids_deepen`). (tests/conftest.py points IPPC_CACHE at the run's
+where it finds what the Python solver finds), roll-outs over a state's legal
+groundings (`CStep.walk_enum`), and IDS deepening from 2 (option
+`ids_deepen`). (tests/conftest.py points IPPC_CACHE at the run's
 temporary folder.)"""
 
 from __future__ import annotations
