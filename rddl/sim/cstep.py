@@ -721,33 +721,11 @@ static int enum_cb(const double *S, double *OUT, int cap, int *IDX) {
    grounding of `ippc_enum_setup`'s, drawn uniformly among the ng + 1 and drawn
    again (up to 8 times) while it is illegal in the state, then noop: about
    uniform over noop and the groundings legal alone, at a few `legal` calls a
-   step. As `ippc_walk` otherwise. */
+   step. As `ippc_walk` otherwise (`walk_steps` below). */
+static double walk_steps(const double *S, int n, const double *POOL, int npool, const double *NOOP,
+                         int groundings, double gamma, uint64_t *rng, int *TAKEN);
 double ippc_walk_enum(const double *S, int n, double gamma, uint64_t *rng, int *TAKEN) {
-    double s[NS + 1], nx[NS + 1], U[NU + 1], Z[NZ + 1], l[NL + 1], A[NA];
-    memcpy(s, S, sizeof(double) * NS);
-    double total = 0.0, disc = 1.0;
-    int taken = 0, ended = 0;
-    for (int t = 0; t < n; t++) {
-        memcpy(A, EN_NOOP, sizeof(double) * NA);
-        if (EN_READY && EN_NG > 0) {
-            for (int k = 0; k < 8; k++) {
-                uint64_t pick = next64(rng) % (uint64_t)(EN_NG + 1);
-                if (pick == 0) break;                       /* noop */
-                int p = EN_POS[pick - 1];
-                A[p] = EN_VAL[pick - 1];
-                if (legal(s, A)) break;
-                A[p] = EN_NOOP[p];
-            }
-        }
-        double r = 0.0, d = 0.0;
-        draws(rng, U, Z);
-        step(s, A, U, Z, nx, &r, &d, l);
-        total += disc * r; disc *= gamma; taken++;
-        memcpy(s, nx, sizeof(double) * NS);
-        if (d != 0) { ended = 1; break; }
-    }
-    *TAKEN = ended ? -taken : taken;
-    return total;
+    return walk_steps(S, n, 0, 0, EN_NOOP, 1, gamma, rng, TAKEN);
 }
 
 /* `ippc_ids_values` with the candidates of every state from `ippc_enum`. */
@@ -765,13 +743,33 @@ long ippc_ids_values_enum(const double *S, const double *KEPT, int n, int depth,
    then noop). *TAKEN: the steps made, negated when the run ended. */
 double ippc_walk(const double *S, int n, const double *POOL, int npool, const double *NOOP,
                  double gamma, uint64_t *rng, int *TAKEN) {
-    double s[NS + 1], nx[NS + 1], U[NU + 1], Z[NZ + 1], l[NL + 1];
+    return walk_steps(S, n, POOL, npool, NOOP, 0, gamma, rng, TAKEN);
+}
+
+/* The roll-outs' loop: each step's action from POOL (`ippc_walk`) or, with
+   `groundings`, noop or one legal grounding (`ippc_walk_enum`). */
+static double walk_steps(const double *S, int n, const double *POOL, int npool, const double *NOOP,
+                         int groundings, double gamma, uint64_t *rng, int *TAKEN) {
+    double s[NS + 1], nx[NS + 1], U[NU + 1], Z[NZ + 1], l[NL + 1], G[NA];
     memcpy(s, S, sizeof(double) * NS);
     double total = 0.0, disc = 1.0;
     int taken = 0, ended = 0;
     for (int t = 0; t < n; t++) {
         const double *A = NOOP;
-        if (npool > 0) {   /* a uniform legal one, else noop */
+        if (groundings) {
+            memcpy(G, NOOP, sizeof(double) * NA);
+            A = G;
+            if (EN_READY && EN_NG > 0) {
+                for (int k = 0; k < 8; k++) {
+                    uint64_t pick = next64(rng) % (uint64_t)(EN_NG + 1);
+                    if (pick == 0) break;                       /* noop */
+                    int p = EN_POS[pick - 1];
+                    G[p] = EN_VAL[pick - 1];
+                    if (legal(s, G)) break;
+                    G[p] = NOOP[p];
+                }
+            }
+        } else if (npool > 0) {   /* a uniform legal one, else noop */
             for (int k = 0; k < 8; k++) {
                 const double *B = POOL + (size_t)(next64(rng) % (uint64_t)npool) * NA;
                 if (legal(s, B)) { A = B; break; }

@@ -19,6 +19,7 @@ from ippc.rddl.model import Model
 from ippc.rddl.simulator import Simulator, State
 
 from ..conftest import ippc_files
+from .test_exact import model_of
 
 TINY = Path(__file__).resolve().parent / "tiny_domains"
 
@@ -91,12 +92,6 @@ instance goal_inst {
     discount = 1.0;
 }
 """
-
-
-def model_of(tmp_path: Path, text: str, name: str) -> Model:
-    f = tmp_path / "m.rddl"
-    f.write_text(text)
-    return load(f)[name]
 
 
 def det_states(model: Model, count: int, seed: int = 0) -> State:

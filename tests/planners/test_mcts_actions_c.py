@@ -16,12 +16,13 @@ import pytest
 from ippc.planners.mcts.actions import enumerate_boolean
 from ippc.planners.mcts.heuristic import training_states
 from ippc.planners.mcts.thts import THTS
-from ippc.rddl import load_model, load_pair
+from ippc.rddl import load_pair
 from ippc.rddl.sim.cstep import find_compiler
 from ippc.rddl.sim.scalar import ScalarStep
 from ippc.rddl.simulator import Simulator
 
 from ..conftest import ippc_files
+from .test_exact import model_of
 from .test_mcts import observe
 from .test_mcts_thts import planner_on, root_of
 
@@ -182,9 +183,7 @@ def test_constraints_the_c_walk_cannot_follow_keep_the_solver(tmp_path: Path) ->
     """`b => a`: the joint action {a, b} is legal though {b} alone is not, so
     the C walk (which only joins groundings legal alone) would miss it: the
     session checks, keeps the solver, and the search still finds {a, b}."""
-    path = tmp_path / "pair.rddl"
-    path.write_text(NON_MONOTONE)
-    model = load_model(path)
+    model = model_of(tmp_path, NON_MONOTONE, "tiny_pair_inst")
     planner, sim = planner_on(model, iterations="300", seed="1", compiled="yes")
     search = planner._thts
     assert search is not None and not search._static
@@ -234,9 +233,7 @@ def test_ids_deepening_stops_at_the_first_depth_where_an_action_beats_noop(
     without it, it searches at the whole depth (6) at once."""
     if compiled == "yes" and find_compiler() is None:
         pytest.skip("no C compiler")
-    path = tmp_path / "chain.rddl"
-    path.write_text(CHAIN)
-    model = load_model(path)
+    model = model_of(tmp_path, CHAIN, "tiny_chain_inst")
     planner, sim = planner_on(
         model, iterations="1", seed="1", compiled=compiled, ids_depth="6", ids_deepen=deepen
     )
@@ -266,9 +263,7 @@ def test_ids_deepening_stops_at_the_first_depth_where_an_action_beats_noop(
 def test_the_c_tree_values_the_root_as_the_python_tree(tmp_path: Path, deepen: str) -> None:
     """The trials in C deepen IDS the same way: one trial of each tree on the
     deterministic chain leaves the root with the same values."""
-    path = tmp_path / "chain.rddl"
-    path.write_text(CHAIN)
-    model = load_model(path)
+    model = model_of(tmp_path, CHAIN, "tiny_chain_inst")
     values = []
     for tree in (True, False):
         planner, sim = planner_on(
@@ -318,9 +313,7 @@ instance tiny_guarded_inst {
 def test_c_rollouts_draw_noop_and_the_groundings_legal_in_the_state(tmp_path: Path) -> None:
     """Without a key `big` is illegal: one-step roll-outs give 0 (noop) or 1
     (small), both, and never 100; with the key all three come up."""
-    path = tmp_path / "guarded.rddl"
-    path.write_text(GUARDED)
-    model = load_model(path)
+    model = model_of(tmp_path, GUARDED, "tiny_guarded_inst")
     planner, sim = planner_on(model, iterations="10", seed="1", compiled="yes")
     search = planner._thts
     assert search is not None and search._cenum and search.c is not None
