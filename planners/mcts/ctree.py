@@ -11,7 +11,8 @@ and no reward-lock check. Everything else of `THTS` holds, node for node:
   kept across the turns of a round (cleared at a new round, or when it
   holds more than `max_nodes` nodes);
 * expansion: every candidate probed under the two fixed draw vectors,
-  equivalent actions dropped, the exact last step; first values by IDS on
+  equivalent actions dropped, the exact last step, sinks solved at once
+  (and the session's `blind_weight` switch); first values by IDS on
   the most-likely determinisation (scaled as `THTS._ids_values`) or by
   roll-outs (`rollout_policy`, `rollout_depth`, extrapolation);
 * trials: UCB1 over the unsolved actions, the exploration scaled by the
@@ -58,12 +59,12 @@ typedef struct {
     cands_fn cb; long libn, libcap; double *lib;  /* state-dependent candidates */
     int scap;
     double U1[NU], Z1[NZ], U2[NU], Z2[NZ];
-    double gamma, w, expl, hweight;
-    int ids_depth, bellman, rollout_depth, policy, extrapolate, ids_deepen, enum_on; long max_nodes, token;
+    double gamma, w, expl, hweight, bweight;
+    int ids_depth, bellman, rollout_depth, policy, extrapolate, ids_deepen, enum_on, sunk; long max_nodes, token;
     uint64_t rng;
     t_node *nodes; double *states; long nn, capn;
     long *table; long tcap;
-    long trials, leaves, ids_leaves, sim_steps;
+    long trials, leaves, ids_leaves, sim_steps, sinks_found;
     double *pn1, *pr1, *kept; int *pd1, *pdet, *psame, *pkeep; double *hv;
 } tree;
 
@@ -105,7 +106,7 @@ static int ensure_scratch(tree *t, int n) {
     return 0;
 }
 
-/* params: gamma, init_weight, exploration, heuristic_weight;
+/* params: gamma, init_weight, exploration, heuristic_weight, blind_weight;
    iparams: ids_depth, bellman_outcomes, rollout_depth, policy (0 random, 1 noop, 2 best),
    extrapolate, max_nodes, token, ids_deepen */
 void *ctree_new(const double *cands, int ncand, const double *pool, int npool, const double *noop,
@@ -127,7 +128,7 @@ void *ctree_new(const double *cands, int ncand, const double *pool, int npool, c
     memcpy(t->noop, noop, sizeof(double) * NA);
     memcpy(t->U1, probes, sizeof(double) * NU); memcpy(t->Z1, probes + NU, sizeof(double) * NZ);
     memcpy(t->U2, probes + NU + NZ, sizeof(double) * NU); memcpy(t->Z2, probes + 2 * NU + NZ, sizeof(double) * NZ);
-    t->gamma = params[0]; t->w = params[1]; t->expl = params[2]; t->hweight = params[3];
+    t->gamma = params[0]; t->w = params[1]; t->expl = params[2]; t->hweight = params[3]; t->bweight = params[4];
     t->ids_depth = (int)iparams[0]; t->bellman = (int)iparams[1]; t->rollout_depth = (int)iparams[2];
     t->policy = (int)iparams[3]; t->extrapolate = (int)iparams[4]; t->max_nodes = iparams[5];
     t->token = iparams[6]; t->ids_deepen = (int)iparams[7];
@@ -278,6 +279,26 @@ static int expand(tree *t, long ni) {
     t_node *nd = &t->nodes[ni];
     nd->acts = acts; nd->nacts = kept;
     t->leaves++;
+    if (kept > 0) {
+        /* a sink: every kept action is deterministic and leaves S as it is, so no action
+           ever changes the state again: each action's value is exact (its reward, then the
+           best reward every step after) */
+        int sink = 1; double best = -INFINITY;
+        for (int a = 0; a < ncand && sink; a++) {
+            if (!t->pkeep[a]) continue;
+            if (!t->pdet[a] || t->pd1[a] || !same(t->pn1 + (size_t)a * NS, S, NS)) sink = 0;
+            else if (t->pr1[a] > best) best = t->pr1[a];
+        }
+        if (sink) {
+            double rest = steps <= 1 ? 0.0 : best * (t->gamma == 1.0 ? steps - 1.0 : (1.0 - pow(t->gamma, steps - 1)) / (1.0 - t->gamma));
+            for (int k2 = 0, a = -1; k2 < kept; k2++) {
+                do a++; while (!t->pkeep[a]);
+                acts[k2].h = t->pr1[a] + t->gamma * rest; acts[k2].solved = 1;
+            }
+            t->sinks_found++; t->sunk = 1;
+            return set_expanded(nd);
+        }
+    }
     if (t->ids_depth && steps > 1 && kept > 0) {
         int d = t->ids_depth < steps ? t->ids_depth : steps;
         /* PROST's IDS: deepen from 2 and stop at the first depth where an action beats
@@ -298,8 +319,12 @@ static int expand(tree *t, long ni) {
         IDS_CB = 0;
         double lo = t->hv[0], hi = t->hv[0];
         for (int a = 1; a < kept; a++) { if (t->hv[a] < lo) lo = t->hv[a]; if (t->hv[a] > hi) hi = t->hv[a]; }
-        if (!(lo == hi && kept > 1)) {
-            double scale = t->hweight * (t->gamma == 1.0 ? (double)steps / d : 1.0);
+        /* where IDS values every action alike, roll-outs stand in; but once the session
+           has met a sink, these values themselves times blind_weight (< 1 keeps such a
+           blind estimate above the exact value of a sink it may avoid) */
+        int alike = lo == hi && kept > 1;
+        if (!alike || (t->sunk && t->bweight > 0)) {
+            double scale = (alike ? t->bweight : t->hweight) * (t->gamma == 1.0 ? (double)steps / d : 1.0);
             for (int a = 0; a < kept; a++) { acts[a].h = t->hv[a] * scale; acts[a].solved = 0; }
             t->ids_leaves++;
             return set_expanded(nd);
@@ -438,10 +463,10 @@ long ctree_root(void *p, const double *S, int steps) {
 
 /* Trials from `root` for `budget` seconds (less the slowest recent trial), or exactly
    `iterations` (>= 0); the root is expanded first whatever the time. STATS: trials,
-   leaves, ids_leaves, sim_steps of this call. Returns 0, or -1 when memory ran out. */
+   leaves, ids_leaves, sim_steps, sinks of this call. Returns 0, or -1 when memory ran out. */
 int ctree_search(void *p, long root, double budget, long iterations, long *STATS) {
     tree *t = (tree *)p;
-    t->trials = t->leaves = t->ids_leaves = t->sim_steps = 0;
+    t->trials = t->leaves = t->ids_leaves = t->sim_steps = t->sinks_found = 0;
     int rc = 0;
     double end = now_s() + budget;
     if (!t->nodes[root].expanded && !t->nodes[root].solved) rc = expand(t, root);
@@ -457,7 +482,7 @@ int ctree_search(void *p, long root, double budget, long iterations, long *STATS
         piece = took > 0.8 * piece ? took : 0.8 * piece;
     }
     if (rc == 0) refresh(t, root);
-    STATS[0] = done; STATS[1] = t->leaves; STATS[2] = t->ids_leaves; STATS[3] = t->sim_steps;
+    STATS[0] = done; STATS[1] = t->leaves; STATS[2] = t->ids_leaves; STATS[3] = t->sim_steps; STATS[4] = t->sinks_found;
     return rc;
 }
 
@@ -563,8 +588,12 @@ class CTree:
         u1, z1, u2, z2 = probes
         flat = [*u1[: c.nu], *z1[: c.nz], *u2[: c.nu], *z2[: c.nz]]
         block = (ctypes.c_double * len(flat))(*flat)
-        params = (ctypes.c_double * 4)(
-            gamma, settings.init_weight, settings.exploration, settings.heuristic_weight
+        params = (ctypes.c_double * 5)(
+            gamma,
+            settings.init_weight,
+            settings.exploration,
+            settings.heuristic_weight,
+            settings.blind_weight,
         )
         iparams = (ctypes.c_long * 8)(
             0,
@@ -594,7 +623,7 @@ class CTree:
         self._info_buffers(max(1, len(acts)))
         self._value = ctypes.c_double()
         self._flags = (ctypes.c_long * 4)()
-        self._stats = (ctypes.c_long * 4)()
+        self._stats = (ctypes.c_long * 5)()
 
     def __del__(self) -> None:
         ptr = getattr(self, "_ptr", None)
@@ -696,6 +725,7 @@ class CTree:
         turn.leaves += int(self._stats[1])
         turn.ids_leaves += int(self._stats[2])
         turn.sim_steps += int(self._stats[3])
+        turn.locks += int(self._stats[4])
         self._read(root)
 
 

@@ -50,6 +50,10 @@ OPTIONS: dict[str, str] = {
     "is too slow or values every action alike) (default ids with engine thts, else rollout)",
     "heuristic_weight": "the ids estimate is multiplied by this (PROST's is 0.5; default 1, "
     "the scale of the rollouts that stand in where ids cannot tell the actions apart)",
+    "blind_weight": "engine thts: where ids values every action of a new node alike, in a "
+    "session that has met a sink (a state no action can change), those values times this "
+    "stand in for the roll-outs, so that a state which may still lead somewhere ranks above "
+    "a sink it can avoid (PROST's heuristic weight; default 0.5; 0: always roll-outs)",
     "ids_timeout": "seconds of ids search per new node, which sets its depth in a learning "
     "phase at the start of the session (default 0.003)",
     "ids_deepen": "the ids search of a node deepens from 2 and stops at the first depth where "
@@ -98,6 +102,7 @@ class Settings:
     init_weight: float = 1.0
     heuristic: str = "rollout"
     heuristic_weight: float = 1.0
+    blind_weight: float = 0.5
     ids_timeout: float = 0.003
     ids_depth: int = 0
     ids_deepen: bool = False
@@ -166,6 +171,7 @@ def read_settings(planner: Planner) -> Settings:
         init_weight=number("init_weight", 1.0, minimum=1e-9),
         heuristic=heuristic,
         heuristic_weight=number("heuristic_weight", 1.0),
+        blind_weight=number("blind_weight", 0.5),
         ids_timeout=number("ids_timeout", 0.003, minimum=1e-6),
         ids_depth=whole("ids_depth", 0, 0),
         ids_deepen=planner.bool_option("ids_deepen", False),

@@ -43,6 +43,12 @@ One trial at a time, as in Keller & Helmert 2013 and PROST:
   descend into solved actions, and a solved root ends the turn's search.
   With `reward_locks`, a new node where the reward can no longer change is
   solved at once (`heuristic.RewardLocks`).
+* *Sinks*: a new node whose kept actions are all deterministic, none
+  ending the run, each leaving the state as it is, never leaves it: it is
+  solved at once, each action at its reward plus the best reward every
+  step after (`_sink`). Once the session has met one, a node whose IDS
+  values are all alike takes them, times `blind_weight`, instead of
+  roll-outs, so that a blind estimate ranks above an exact sink.
 * *Time*: the turn ends at its deadline less the slowest recent trial
   (a decaying maximum), checked between trials and between the actions of
   an expansion, so a turn ends within about one trial's time of its
@@ -277,6 +283,7 @@ class THTS:
         self.piece = 0.0  # the slowest recent trial (decaying)
         self.turn = SearchStats()
         self.locked = 0
+        self._sunk = False  # a sink was met this session (see `_ids_values`)
         self.c = cstep
         if cstep is not None:
             # the C step's own generator, and the probes' two fixed draw vectors
@@ -598,6 +605,7 @@ class THTS:
         if self.c is not None:
             kept = self._cprobe(state, rows)
             rows = []
+        whole = True  # every candidate probed
         for i, row in enumerate(rows):
             if i & 31 == 31 and self.deadline is not None and time.monotonic() >= self.deadline:
                 # (hundreds of candidates: TriangleTireworld #5 has 813) a node
@@ -605,6 +613,7 @@ class THTS:
                 # the actions probed so far (noop first)
                 if not root:
                     raise _Stop
+                whole = False
                 break
             act = self._tuple(row)
             det, sig, s1, r1, d1, same_r = self._probe(state, act)
@@ -616,6 +625,8 @@ class THTS:
         asolved: list[bool] = []
         gamma = self.gamma
         late = False
+        if whole and self._sink(node, kept):
+            return
         if self.ids_depth and node.steps > 1:
             try:
                 # (the root's IDS always finishes: valuing its actions by their
@@ -655,6 +666,20 @@ class THTS:
             h.append(r + gamma * value)
             asolved.append(False)
         self._set_expanded(node, kept, h, asolved)
+
+    def _sink(self, node: TNode, kept: list[Any]) -> bool:
+        """Solve a sink at once: every kept action deterministic, none
+        ending the run, each leaving the state as it is. Nothing can change
+        the state again, so each action is worth its reward plus the best
+        reward every step after."""
+        if not kept or not all(k[2] and not k[5] and k[3] == node.state for k in kept):
+            return False
+        best = max(k[4] for k in kept)
+        rest = best * self._horizon(node.steps - 1) if node.steps > 1 else 0.0
+        self._set_expanded(node, kept, [k[4] + self.gamma * rest for k in kept], [True] * len(kept))
+        self.turn.locks += 1
+        self._sunk = True
+        return True
 
     def _cprobe(
         self, state: StateT, rows: list[int]
@@ -708,7 +733,8 @@ class THTS:
 
     def _ids_values(self, node: TNode, kept: list[Any], check: bool = True) -> list[float] | None:
         """PROST's IDS estimate of each kept action (None where it values
-        them all alike: roll-outs then): its reward plus the depth-(d-1)
+        them all alike, roll-outs then, unless the session met a sink: then
+        times `blind_weight` instead): its reward plus the depth-(d-1)
         value of its successor on the most-likely determinisation, scaled to
         the steps left at the same reward a step, times `heuristic_weight`."""
         steps = node.steps
@@ -724,9 +750,12 @@ class THTS:
             if d >= upto or any(v > out[noop_k] for i, v in enumerate(out) if i != noop_k):
                 break
             d += 1
+        weight = self.st.heuristic_weight
         if max(out) == min(out) and len(out) > 1:
-            return None
-        scale = self.st.heuristic_weight * (steps / d if self.gamma == 1.0 else 1.0)
+            if not self._sunk or self.st.blind_weight <= 0:
+                return None
+            weight = self.st.blind_weight  # a blind estimate, once a sink was met
+        scale = weight * (steps / d if self.gamma == 1.0 else 1.0)
         return [v * scale for v in out]
 
     def _ids_at(self, state: StateT, kept: list[Any], d: int, check: bool) -> list[float]:
