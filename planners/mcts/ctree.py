@@ -60,7 +60,7 @@ typedef struct {
     int scap;
     double U1[NU], Z1[NZ], U2[NU], Z2[NZ];
     double gamma, w, expl, hweight, bweight;
-    int ids_depth, bellman, rollout_depth, policy, extrapolate, ids_deepen, enum_on, sunk; long max_nodes, token;
+    int ids_depth, bellman, rollout_depth, policy, extrapolate, ids_deepen, enum_on, sunk, ids_smooth; long max_nodes, token;
     uint64_t rng;
     t_node *nodes; double *states; long nn, capn;
     long *table; long tcap;
@@ -98,7 +98,7 @@ static int ensure_scratch(tree *t, int n) {
     t->pn1 = (double *)malloc(sizeof(double) * NS * (size_t)m);
     t->pr1 = (double *)malloc(sizeof(double) * (size_t)m);
     t->kept = (double *)malloc(sizeof(double) * NA * (size_t)m);
-    t->hv = (double *)malloc(sizeof(double) * (size_t)m);
+    t->hv = (double *)malloc(sizeof(double) * 2 * (size_t)m);  /* and the depth d-1 values */
     t->pd1 = (int *)malloc(sizeof(int) * (size_t)m); t->pdet = (int *)malloc(sizeof(int) * (size_t)m);
     t->psame = (int *)malloc(sizeof(int) * (size_t)m); t->pkeep = (int *)malloc(sizeof(int) * (size_t)m);
     t->scap = m;
@@ -108,7 +108,7 @@ static int ensure_scratch(tree *t, int n) {
 
 /* params: gamma, init_weight, exploration, heuristic_weight, blind_weight;
    iparams: ids_depth, bellman_outcomes, rollout_depth, policy (0 random, 1 noop, 2 best),
-   extrapolate, max_nodes, token, ids_deepen */
+   extrapolate, max_nodes, token, ids_deepen, ids_smooth */
 void *ctree_new(const double *cands, int ncand, const double *pool, int npool, const double *noop,
                 const double *probes, const double *params, const long *iparams, uint64_t seed,
                 cands_fn cb) {
@@ -131,7 +131,7 @@ void *ctree_new(const double *cands, int ncand, const double *pool, int npool, c
     t->gamma = params[0]; t->w = params[1]; t->expl = params[2]; t->hweight = params[3]; t->bweight = params[4];
     t->ids_depth = (int)iparams[0]; t->bellman = (int)iparams[1]; t->rollout_depth = (int)iparams[2];
     t->policy = (int)iparams[3]; t->extrapolate = (int)iparams[4]; t->max_nodes = iparams[5];
-    t->token = iparams[6]; t->ids_deepen = (int)iparams[7];
+    t->token = iparams[6]; t->ids_deepen = (int)iparams[7]; t->ids_smooth = (int)iparams[8];
     t->rng = seed;
     return t;
 }
@@ -315,6 +315,15 @@ static int expand(tree *t, long ni) {
             int better = 0;
             for (int a = 0; a < kept && !better; a++) if (a != noop_k && t->hv[a] > t->hv[noop_k]) better = 1;
             if (better) break;
+        }
+        if (t->ids_smooth && d >= 3) {
+            /* the mean of the depth-d and depth-(d-1) values a step: an estimate that does
+               not swing with the parity of the depth (a reward every other step); not at
+               depth 2, whose partner would be the immediate reward alone */
+            double *h2 = t->hv + t->scap;
+            t->sim_steps += ippc_ids_values(S, t->kept, kept, t->cands, t->ncand, d - 1, t->gamma, h2, t->token);
+            for (int a = 0; a < kept; a++)
+                t->hv[a] = 0.5 * (t->hv[a] + (t->gamma == 1.0 ? h2[a] * d / (d - 1.0) : h2[a]));
         }
         IDS_CB = 0;
         double lo = t->hv[0], hi = t->hv[0];
@@ -595,7 +604,7 @@ class CTree:
             settings.heuristic_weight,
             settings.blind_weight,
         )
-        iparams = (ctypes.c_long * 8)(
+        iparams = (ctypes.c_long * 9)(
             0,
             settings.bellman_outcomes,
             settings.rollout_depth,
@@ -604,6 +613,7 @@ class CTree:
             settings.max_nodes,
             token,
             int(settings.ids_deepen),
+            int(settings.ids_smooth),
         )
         pool = pool or []
         self._ptr = lib.ctree_new(

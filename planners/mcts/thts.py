@@ -750,6 +750,12 @@ class THTS:
             if d >= upto or any(v > out[noop_k] for i, v in enumerate(out) if i != noop_k):
                 break
             d += 1
+        if self.st.ids_smooth and d >= 3:
+            # the mean of the depth-d and depth-(d-1) values a step (see ctree's expand;
+            # not at depth 2, whose partner would be the immediate reward alone)
+            less = self._ids_at(node.state, kept, d - 1, check)
+            f = d / (d - 1.0) if self.gamma == 1.0 else 1.0
+            out = [0.5 * (v + w * f) for v, w in zip(out, less, strict=True)]
         weight = self.st.heuristic_weight
         if max(out) == min(out) and len(out) > 1:
             if not self._sunk or self.st.blind_weight <= 0:

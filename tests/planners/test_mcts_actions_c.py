@@ -234,8 +234,14 @@ def test_ids_deepening_stops_at_the_first_depth_where_an_action_beats_noop(
     if compiled == "yes" and find_compiler() is None:
         pytest.skip("no C compiler")
     model = model_of(tmp_path, CHAIN, "tiny_chain_inst")
-    planner, sim = planner_on(
-        model, iterations="1", seed="1", compiled=compiled, ids_depth="6", ids_deepen=deepen
+    planner, sim = planner_on(  # (without the smoothing's second search one depth less)
+        model,
+        iterations="1",
+        seed="1",
+        compiled=compiled,
+        ids_depth="6",
+        ids_deepen=deepen,
+        ids_smooth="no",
     )
     search = planner._thts
     assert search is not None
