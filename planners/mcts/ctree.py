@@ -206,9 +206,11 @@ static long get_node(tree *t, const double *S, int steps, int done) {
     return i;
 }
 
+/* the discounted number of steps in n (THTS._horizon) */
+static double horizon_of(double g, int n) { return g == 1.0 ? (double)n : (1.0 - pow(g, n)) / (1.0 - g); }
+
 static double extrapolated(double total, int taken, int steps, double g) {
-    if (g == 1.0) return total * steps / taken;
-    return total * ((1.0 - pow(g, steps)) / (1.0 - g)) / ((1.0 - pow(g, taken)) / (1.0 - g));
+    return total * horizon_of(g, steps) / horizon_of(g, taken);
 }
 
 static double walk1(tree *t, const double *S, int steps, int random_policy) {
@@ -290,7 +292,7 @@ static int expand(tree *t, long ni) {
             else if (t->pr1[a] > best) best = t->pr1[a];
         }
         if (sink) {
-            double rest = steps <= 1 ? 0.0 : best * (t->gamma == 1.0 ? steps - 1.0 : (1.0 - pow(t->gamma, steps - 1)) / (1.0 - t->gamma));
+            double rest = steps <= 1 ? 0.0 : best * horizon_of(t->gamma, steps - 1);
             for (int k2 = 0, a = -1; k2 < kept; k2++) {
                 do a++; while (!t->pkeep[a]);
                 acts[k2].h = t->pr1[a] + t->gamma * rest; acts[k2].solved = 1;
