@@ -61,7 +61,7 @@ OPTIONS: dict[str, str] = {
     "(default no: it scored lower on TriangleTireworld 2014)",
     "ids_smooth": "engine thts: a node's ids estimate is the mean of its values a step at "
     "the depth and one less (depths of 3 and more), so that it does not swing with the "
-    "depth's parity (default no)",
+    "depth's parity (default yes; no: the value at the depth alone)",
     "ids_depth": "fixed depth of the ids search instead of the learned one (default 0: "
     "learned, except with iterations, where it is 5 so that a seed gives the same search "
     "on any machine)",
@@ -109,7 +109,7 @@ class Settings:
     ids_timeout: float = 0.003
     ids_depth: int = 0
     ids_deepen: bool = False
-    ids_smooth: bool = False
+    ids_smooth: bool = True
     reward_locks: bool = False
     max_actions: int = 128
     enumerate_limit: int = 4096
@@ -179,7 +179,7 @@ def read_settings(planner: Planner) -> Settings:
         ids_timeout=number("ids_timeout", 0.003, minimum=1e-6),
         ids_depth=whole("ids_depth", 0, 0),
         ids_deepen=planner.bool_option("ids_deepen", False),
-        ids_smooth=planner.bool_option("ids_smooth", False),
+        ids_smooth=planner.bool_option("ids_smooth", True),
         reward_locks=planner.bool_option("reward_locks", False),
         max_actions=whole("max_actions", 128, 1),
         enumerate_limit=whole("enumerate_limit", 4096, 1),

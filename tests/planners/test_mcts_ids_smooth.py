@@ -1,7 +1,7 @@
 """Option `ids_smooth` of the thts engine: a node's IDS estimate is the mean
 of its values a step at the depth and one less (from depth 3 on), in the
 Python tree and in the C tree alike, so that it does not swing with the
-parity of the depth where a reward comes every other step."""
+parity of the depth where a reward comes every other step. On by default."""
 
 from __future__ import annotations
 
@@ -70,3 +70,17 @@ def test_the_smoothed_estimate_is_the_mean_a_step_of_two_depths(
     assert dict(zip(root.rows, root.n, strict=True))[root.rows[0]] == 0
     assert values["noop"] == pytest.approx(EXPECTED[depth, smooth], abs=1e-9)
     assert np.isfinite(values["take"])
+
+
+@pytest.mark.parametrize("compiled", ["no", pytest.param("yes", marks=needs_cc)])
+@pytest.mark.parametrize("depth", ["3", "4"])
+def test_smoothing_is_the_default(tmp_path: Path, compiled: str, depth: str) -> None:
+    """Without the option the estimate is the smoothed one (recon 2011's
+    estimates swung with the parity of the learned depth without it)."""
+    model = model_of(tmp_path, PARITY, "tiny_parity_inst")
+    planner, sim = planner_on(model, iterations="1", seed="1", compiled=compiled, ids_depth=depth)
+    state = sim.initial_state(1)
+    planner.act(observe(sim, state, 1, 8))
+    values = acts_values(planner, sim, root_of(planner, state, 8))
+    assert values["noop"] == pytest.approx(EXPECTED[depth, "yes"], abs=1e-9)
+    assert values["noop"] != pytest.approx(EXPECTED[depth, "no"], abs=1e-9)
