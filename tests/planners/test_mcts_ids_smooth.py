@@ -6,6 +6,7 @@ parity of the depth where a reward comes every other step. On by default."""
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -52,19 +53,27 @@ EXPECTED = {
 }
 
 
+def root_values(
+    tmp_path: Path, compiled: str, depth: str, **options: str
+) -> tuple[Any, dict[str, float]]:
+    """The root and its actions' values after one trial from `on` at a fixed
+    IDS depth (8 steps left)."""
+    model = model_of(tmp_path, PARITY, "tiny_parity_inst")
+    planner, sim = planner_on(
+        model, iterations="1", seed="1", compiled=compiled, ids_depth=depth, **options
+    )
+    state = sim.initial_state(1)
+    planner.act(observe(sim, state, 1, 8))
+    root = root_of(planner, state, 8)
+    return root, acts_values(planner, sim, root)
+
+
 @pytest.mark.parametrize("compiled", ["no", pytest.param("yes", marks=needs_cc)])
 @pytest.mark.parametrize("depth,smooth", sorted(EXPECTED))
 def test_the_smoothed_estimate_is_the_mean_a_step_of_two_depths(
     tmp_path: Path, compiled: str, depth: str, smooth: str
 ) -> None:
-    model = model_of(tmp_path, PARITY, "tiny_parity_inst")
-    planner, sim = planner_on(
-        model, iterations="1", seed="1", compiled=compiled, ids_depth=depth, ids_smooth=smooth
-    )
-    state = sim.initial_state(1)
-    planner.act(observe(sim, state, 1, 8))
-    root = root_of(planner, state, 8)
-    values = acts_values(planner, sim, root)
+    root, values = root_values(tmp_path, compiled, depth, ids_smooth=smooth)
     assert set(values) == {"noop", "take"}
     # the one trial went through take (0.5 a step better): noop keeps its estimate
     assert dict(zip(root.rows, root.n, strict=True))[root.rows[0]] == 0
@@ -77,10 +86,6 @@ def test_the_smoothed_estimate_is_the_mean_a_step_of_two_depths(
 def test_smoothing_is_the_default(tmp_path: Path, compiled: str, depth: str) -> None:
     """Without the option the estimate is the smoothed one (recon 2011's
     estimates swung with the parity of the learned depth without it)."""
-    model = model_of(tmp_path, PARITY, "tiny_parity_inst")
-    planner, sim = planner_on(model, iterations="1", seed="1", compiled=compiled, ids_depth=depth)
-    state = sim.initial_state(1)
-    planner.act(observe(sim, state, 1, 8))
-    values = acts_values(planner, sim, root_of(planner, state, 8))
+    _, values = root_values(tmp_path, compiled, depth)
     assert values["noop"] == pytest.approx(EXPECTED[depth, "yes"], abs=1e-9)
     assert values["noop"] != pytest.approx(EXPECTED[depth, "no"], abs=1e-9)
