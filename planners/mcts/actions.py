@@ -175,6 +175,8 @@ class ActionChooser:
         constraints = [*dom.action_preconditions, *dom.state_action_constraints]
         self.constrained = bool(constraints)
         inert = list(inert)
+        self.skipped = set(inert)
+        """The action groundings candidates and roll-outs leave at their default."""
         self._inert: dict[str, Array] = {}
         """Per action fluent, where its groundings never matter (`ScalarStep.inert_actions`):
         candidates and roll-out actions leave those at their default."""

@@ -60,7 +60,7 @@ typedef struct {
     int scap;
     double U1[NU], Z1[NZ], U2[NU], Z2[NZ];
     double gamma, w, expl, hweight, bweight;
-    int ids_depth, bellman, rollout_depth, policy, extrapolate, ids_deepen, enum_on, sunk, ids_smooth; long max_nodes, token;
+    int ids_depth, bellman, rollout_depth, policy, extrapolate, ids_deepen, enum_on, sunk, ids_smooth, blind_future; long max_nodes, token;
     uint64_t rng;
     t_node *nodes; double *states; long nn, capn;
     long *table; long tcap;
@@ -108,7 +108,7 @@ static int ensure_scratch(tree *t, int n) {
 
 /* params: gamma, init_weight, exploration, heuristic_weight, blind_weight;
    iparams: ids_depth, bellman_outcomes, rollout_depth, policy (0 random, 1 noop, 2 best),
-   extrapolate, max_nodes, token, ids_deepen, ids_smooth */
+   extrapolate, max_nodes, token, ids_deepen, ids_smooth, blind_future */
 void *ctree_new(const double *cands, int ncand, const double *pool, int npool, const double *noop,
                 const double *probes, const double *params, const long *iparams, uint64_t seed,
                 cands_fn cb) {
@@ -132,6 +132,7 @@ void *ctree_new(const double *cands, int ncand, const double *pool, int npool, c
     t->ids_depth = (int)iparams[0]; t->bellman = (int)iparams[1]; t->rollout_depth = (int)iparams[2];
     t->policy = (int)iparams[3]; t->extrapolate = (int)iparams[4]; t->max_nodes = iparams[5];
     t->token = iparams[6]; t->ids_deepen = (int)iparams[7]; t->ids_smooth = (int)iparams[8];
+    t->blind_future = (int)iparams[9];
     t->rng = seed;
     return t;
 }
@@ -318,6 +319,28 @@ static int expand(tree *t, long ni) {
             for (int a = 0; a < kept && !better; a++) if (a != noop_k && t->hv[a] > t->hv[noop_k]) better = 1;
             if (better) break;
         }
+        /* with blind_future, roll-outs too where every action but noop costs more now
+           than noop and the values differ only by that first step's reward: whatever
+           follows it is worth the same after every action (within its depth IDS sees
+           no goal, only what each action costs now), and these values would only
+           rank noop first */
+        int future_alike = 0;
+        int noop_at = -1;
+        if (t->blind_future && d >= 2 && kept > 1)
+            for (int a = 0; a < kept && noop_at < 0; a++)
+                if (same(t->kept + (size_t)a * NA, t->noop, NA)) noop_at = a;
+        if (noop_at >= 0) {
+            double *h1 = t->hv + t->scap;
+            t->sim_steps += ippc_ids_values(S, t->kept, kept, t->cands, t->ncand, 1, t->gamma, h1, t->token);
+            double f0 = t->hv[noop_at] - h1[noop_at];
+            double tol = 1e-9 * (1.0 + (f0 < 0 ? -f0 : f0));
+            future_alike = 1;
+            for (int a = 0; a < kept && future_alike; a++) {
+                if (a == noop_at) continue;
+                double f = t->hv[a] - h1[a];
+                if (f - f0 > tol || f0 - f > tol || h1[a] >= h1[noop_at] - tol) future_alike = 0;
+            }
+        }
         if (t->ids_smooth && d >= 3) {
             /* the mean of the depth-d and depth-(d-1) values a step: an estimate that does
                not swing with the parity of the depth (a reward every other step); not at
@@ -334,7 +357,8 @@ static int expand(tree *t, long ni) {
            has met a sink, these values themselves times blind_weight (< 1 keeps such a
            blind estimate above the exact value of a sink it may avoid) */
         int alike = lo == hi && kept > 1;
-        if (!alike || (t->sunk && t->bweight > 0)) {
+        if (alike) future_alike = 0;
+        if (!future_alike && (!alike || (t->sunk && t->bweight > 0))) {
             double scale = (alike ? t->bweight : t->hweight) * (t->gamma == 1.0 ? (double)steps / d : 1.0);
             for (int a = 0; a < kept; a++) { acts[a].h = t->hv[a] * scale; acts[a].solved = 0; }
             t->ids_leaves++;
@@ -606,7 +630,7 @@ class CTree:
             settings.heuristic_weight,
             settings.blind_weight,
         )
-        iparams = (ctypes.c_long * 9)(
+        iparams = (ctypes.c_long * 10)(
             0,
             settings.bellman_outcomes,
             settings.rollout_depth,
@@ -616,6 +640,7 @@ class CTree:
             token,
             int(settings.ids_deepen),
             int(settings.ids_smooth),
+            int(settings.blind_future),
         )
         pool = pool or []
         self._ptr = lib.ctree_new(

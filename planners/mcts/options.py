@@ -62,9 +62,15 @@ OPTIONS: dict[str, str] = {
     "ids_smooth": "engine thts: a node's ids estimate is the mean of its values a step at "
     "the depth and one less (depths of 3 and more), so that it does not swing with the "
     "depth's parity (default yes; no: the value at the depth alone)",
+    "blind_future": "engine thts: where every action but noop costs more now than noop and "
+    "the ids estimates differ only by that first step's reward (no goal within ids's depth), "
+    "roll-outs instead, even once a sink was met (default yes)",
     "ids_depth": "fixed depth of the ids search instead of the learned one (default 0: "
     "learned, except with iterations, where it is 5 so that a seed gives the same search "
     "on any machine)",
+    "prune_useless": "engine thts: leave at their default the action groundings that can "
+    "never pay (they touch only state the reward cannot depend on, and cost or nothing; "
+    "AcademicAdvising's courses that lead to no requirement) (default yes)",
     "reward_locks": "a new node whose reward can no longer change (a dead end or a goal) "
     "is solved at once (the check costs up to 0.1 s a state; default no)",
     "max_actions": "most candidate joint actions per decision node: all the legal ones when "
@@ -110,6 +116,8 @@ class Settings:
     ids_depth: int = 0
     ids_deepen: bool = False
     ids_smooth: bool = True
+    blind_future: bool = True
+    prune_useless: bool = True
     reward_locks: bool = False
     max_actions: int = 128
     enumerate_limit: int = 4096
@@ -180,6 +188,8 @@ def read_settings(planner: Planner) -> Settings:
         ids_depth=whole("ids_depth", 0, 0),
         ids_deepen=planner.bool_option("ids_deepen", False),
         ids_smooth=planner.bool_option("ids_smooth", True),
+        blind_future=planner.bool_option("blind_future", True),
+        prune_useless=planner.bool_option("prune_useless", True),
         reward_locks=planner.bool_option("reward_locks", False),
         max_actions=whole("max_actions", 128, 1),
         enumerate_limit=whole("enumerate_limit", 4096, 1),

@@ -28,6 +28,7 @@ from .ctree import TREE_C, attach
 from .deadline import Deadline
 from .heuristic import IDS, RewardLocks, training_states
 from .options import OPTIONS, Settings, read_settings
+from .relevance import useless_actions
 from .rollouts import Expander, _stack_states
 from .stats import SearchStats
 from .thts import THTS
@@ -140,7 +141,7 @@ class MCTSPlanner(Planner):
             sim,
             dataclasses.replace(st, max_actions=8 * st.max_actions),
             self.rng,
-            inert=scalar.inert_actions,
+            inert=self._skipped(session, scalar),
         )
         self._chooser = chooser
         cstep = None
@@ -176,6 +177,25 @@ class MCTSPlanner(Planner):
         if attach(search):
             log.info("mcts: %s: the trials in C", session.instance)
         return search
+
+    def _skipped(
+        self, session: SessionInfo, scalar: ScalarStep
+    ) -> list[tuple[str, tuple[int, ...]]]:
+        """The action groundings the thts search leaves at their default: those
+        the step never reads, and with `prune_useless` those that can never pay
+        (`relevance.useless_actions`)."""
+        skipped = list(scalar.inert_actions)
+        if self.settings.prune_useless:
+            useless = useless_actions(scalar)
+            if useless:
+                log.info(
+                    "mcts: %s: %d of %d action groundings can never pay: left out",
+                    session.instance,
+                    len(useless),
+                    len(scalar.action_keys),
+                )
+            skipped.extend(useless)
+        return skipped
 
     def _heuristic(self, session: SessionInfo) -> tuple[IDS | None, RewardLocks | None]:
         """IDS (learned on random-walk states, PROST's learning phase) and

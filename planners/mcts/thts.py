@@ -331,7 +331,7 @@ class THTS:
             return False
         if any(p.range != "bool" for p in sim.action_fluents) or self.chooser.solver is None:
             return False
-        inert = set(self.fast.inert_actions)
+        inert = self.chooser.skipped
         noop = self.fast.noop
         keys = [(i, key) for i, key in enumerate(self.fast.action_keys) if key not in inert]
         grounds = [(i, 0.0 if noop[i] else 1.0) for i, _ in keys]
@@ -734,7 +734,9 @@ class THTS:
     def _ids_values(self, node: TNode, kept: list[Any], check: bool = True) -> list[float] | None:
         """PROST's IDS estimate of each kept action (None where it values
         them all alike, roll-outs then, unless the session met a sink: then
-        times `blind_weight` instead): its reward plus the depth-(d-1)
+        times `blind_weight` instead; None too with `blind_future` where every
+        action but noop costs more now than noop and the values differ only by
+        that first step's reward): its reward plus the depth-(d-1)
         value of its successor on the most-likely determinisation, scaled to
         the steps left at the same reward a step, times `heuristic_weight`."""
         steps = node.steps
@@ -750,6 +752,21 @@ class THTS:
             if d >= upto or any(v > out[noop_k] for i, v in enumerate(out) if i != noop_k):
                 break
             d += 1
+        future_alike = False
+        noop_at = -1
+        if self.st.blind_future and d >= 2 and len(out) > 1:
+            noop_at = next((i for i, k in enumerate(kept) if k[1] == self.fast.noop), -1)
+        if noop_at >= 0:
+            # blind too where every action but noop costs more now than noop and
+            # the values differ only by that first step's reward (see ctree's expand)
+            first = self._ids_at(node.state, kept, 1, check)
+            futures = [v - r for v, r in zip(out, first, strict=True)]
+            tol = 1e-9 * (1.0 + abs(futures[noop_at]))
+            future_alike = all(
+                abs(f - futures[noop_at]) <= tol and r < first[noop_at] - tol
+                for i, (f, r) in enumerate(zip(futures, first, strict=True))
+                if i != noop_at
+            )
         if self.st.ids_smooth and d >= 3:
             # the mean of the depth-d and depth-(d-1) values a step (see ctree's expand;
             # not at depth 2, whose partner would be the immediate reward alone)
@@ -757,6 +774,8 @@ class THTS:
             f = d / (d - 1.0) if self.gamma == 1.0 else 1.0
             out = [0.5 * (v + w * f) for v, w in zip(out, less, strict=True)]
         weight = self.st.heuristic_weight
+        if future_alike and max(out) != min(out):
+            return None  # roll-outs, even once a sink was met (see ctree's expand)
         if max(out) == min(out) and len(out) > 1:
             if not self._sunk or self.st.blind_weight <= 0:
                 return None

@@ -400,7 +400,7 @@ def test_registered_by_name() -> None:
     [
         (
             {"explore": "1"},
-            r"planner 'mcts' has no option 'explore' \(valid options: batch, bellman_outcomes, blind_weight, compiled, depth",
+            r"planner 'mcts' has no option 'explore' \(valid options: batch, bellman_outcomes, blind_future, blind_weight, compiled, depth",
         ),
         ({"batch": "0"}, "option 'batch' must be an integer >= 1, got '0'"),
         ({"time_per_step": "soon"}, "option 'time_per_step' must be a number, got 'soon'"),

@@ -59,8 +59,16 @@ def root_values(
     """The root and its actions' values after one trial from `on` at a fixed
     IDS depth (8 steps left)."""
     model = model_of(tmp_path, PARITY, "tiny_parity_inst")
+    # (take's values differ from noop's only by its first step's reward: with
+    # blind_future these would be roll-outs' values)
     planner, sim = planner_on(
-        model, iterations="1", seed="1", compiled=compiled, ids_depth=depth, **options
+        model,
+        iterations="1",
+        seed="1",
+        compiled=compiled,
+        ids_depth=depth,
+        blind_future="no",
+        **options,
     )
     state = sim.initial_state(1)
     planner.act(observe(sim, state, 1, 8))

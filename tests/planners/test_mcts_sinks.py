@@ -2,7 +2,9 @@
 and leaves the state as it is can never leave it, so it is solved at once,
 each action at its reward plus the best reward every step after (in the
 Python tree and in the C tree alike). TriangleTireworld's dead ends (a flat
-tire, no spare in the car or at the place) are such states."""
+tire, no spare in the car or at the place) are such states. (The tiny
+domains' `fix` only costs: `prune_useless` would leave it out, so these
+tests turn it off.)"""
 
 from __future__ import annotations
 
@@ -76,7 +78,9 @@ def test_a_sink_is_solved_at_once_at_its_exact_value(
     tmp_path: Path, compiled: str, instance: str, gamma: float
 ) -> None:
     model = model_of(tmp_path, SINK, instance)
-    planner, sim = planner_on(model, iterations="50", seed="1", compiled=compiled, ids_depth="3")
+    planner, sim = planner_on(
+        model, iterations="50", seed="1", compiled=compiled, ids_depth="3", prune_useless="no"
+    )
     state = sim.initial_state(1)
     steps = 6
     planner.act(observe(sim, state, 1, steps))
@@ -97,7 +101,9 @@ def test_a_sink_is_solved_at_once_at_its_exact_value(
 @TREES
 def test_a_state_an_action_can_change_is_no_sink(tmp_path: Path, compiled: str) -> None:
     model = model_of(tmp_path, SINK, "tiny_sink_whole")
-    planner, sim = planner_on(model, iterations="5", seed="1", compiled=compiled, ids_depth="3")
+    planner, sim = planner_on(
+        model, iterations="5", seed="1", compiled=compiled, ids_depth="3", prune_useless="no"
+    )
     state = sim.initial_state(1)
     planner.act(observe(sim, state, 1, 6))
     root = root_of(planner, state, 6)
@@ -169,7 +175,13 @@ def test_blind_ids_values_stand_in_for_rollouts_once_a_sink_was_met(
     that is 0."""
     model = model_of(tmp_path, BLIND, "tiny_blind_inst")
     planner, sim = planner_on(
-        model, iterations="1", seed="1", compiled=compiled, ids_depth="3", blind_weight=blind_weight
+        model,
+        iterations="1",
+        seed="1",
+        compiled=compiled,
+        ids_depth="3",
+        blind_weight=blind_weight,
+        prune_useless="no",
     )
     whole = sim.initial_state(1)
     planner.act(observe(sim, whole, 1, 6))
@@ -189,3 +201,90 @@ def test_blind_ids_values_stand_in_for_rollouts_once_a_sink_was_met(
     else:
         # -3 each, and the one trial's action -1 + 0.5 x -5 averaged in
         assert sorted(np.round(after.q, 9)) == [-3.25, -3.0]
+
+
+# `go` costs 1 and moves the car on; the goal pays 10 a step from pos 4 on.
+FAR = """
+domain tiny_far {
+    requirements = { concurrent, reward-deterministic };
+    pvariables {
+        pos : { state-fluent, int, default = 0 };
+        go : { action-fluent, bool, default = false };
+    };
+    cpfs {
+        pos' = if (go) then pos + 1 else pos;
+    };
+    reward = 10 * [pos >= 4] - go;
+}
+instance tiny_far_inst {
+    domain = tiny_far;
+    max-nondef-actions = 1;
+    horizon = 8;
+    discount = 1.0;
+}
+"""
+
+
+@TREES
+@pytest.mark.parametrize("blind_future", ["yes", "no"])
+def test_ids_values_that_differ_only_by_the_first_reward_are_blind(
+    tmp_path: Path, compiled: str, blind_future: str
+) -> None:
+    """From pos 0, IDS at depth 2 sees no goal: go's value is noop's less its
+    cost (every action but noop costs now, and what follows is worth the same). With `blind_future` (the default) roll-outs value the root (and the
+    node one trial reaches below it) instead; without it IDS's values do, and
+    noop ranks first. A step from the goal (pos 3) IDS sees it, and its values
+    stand either way."""
+    model = model_of(tmp_path, FAR, "tiny_far_inst")
+    planner, sim = planner_on(
+        model, iterations="1", seed="1", compiled=compiled, ids_depth="2", blind_future=blind_future
+    )
+    far = sim.initial_state(1)
+    planner.act(observe(sim, far, 1, 8))
+    root = root_of(planner, far, 8)
+    assert len(root.q) == 2
+    if blind_future == "yes":
+        assert planner.last_turn.ids_leaves == 0
+    else:
+        assert planner.last_turn.ids_leaves == 2
+        if compiled == "no":  # (the C tree's view holds no first estimates)
+            # depth 2: noop 0 + 0, go -1 + 0, scaled to the 8 steps left (x 4)
+            assert sorted(np.round(root.h, 9)) == [-4.0, 0.0]
+    near = sim.initial_state(1)
+    near.values["pos"][0] = 3
+    planner.act(observe(sim, near, 1, 8))
+    assert planner.last_turn.ids_leaves >= 1
+    if compiled == "no":
+        # noop 0 + 0, go -1 + 10 (x 4)
+        assert sorted(np.round(root_of(planner, near, 8).h, 9)) == [0.0, 36.0]
+
+
+# As tiny_far, and `paint` is free: it counts only at pos 6 and more, out of IDS's sight.
+FAR_PAINT = (
+    FAR.replace("tiny_far", "tiny_far_paint")
+    .replace(
+        "go : { action-fluent, bool, default = false };",
+        "go : { action-fluent, bool, default = false };\n"
+        "        paint : { action-fluent, bool, default = false };\n"
+        "        painted : { state-fluent, bool, default = false };",
+    )
+    .replace(
+        "pos' = if (go) then pos + 1 else pos;",
+        "pos' = if (go) then pos + 1 else pos;\n        painted' = painted | paint;",
+    )
+    .replace("- go;", "- go + 5 * [painted ^ pos >= 6];")
+)
+
+
+@TREES
+def test_ids_values_stand_where_an_action_but_noop_costs_nothing_now(
+    tmp_path: Path, compiled: str
+) -> None:
+    """The same far state, and `paint` costs nothing now: IDS's values are
+    not blind (`blind_future` asks that every action but noop cost now)."""
+    model = model_of(tmp_path, FAR_PAINT, "tiny_far_paint_inst")
+    planner, sim = planner_on(model, iterations="1", seed="1", compiled=compiled, ids_depth="2")
+    far = sim.initial_state(1)
+    planner.act(observe(sim, far, 1, 8))
+    assert len(root_of(planner, far, 8).q) == 3
+    assert planner.last_turn.ids_leaves >= 1

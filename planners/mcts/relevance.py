@@ -1,0 +1,465 @@
+"""Action groundings that can never pay: a relevance analysis of the scalar
+step (`ippc.rddl.sim.scalar.ScalarStep`'s generated source).
+
+A state grounding is *relevant* when the reward, the termination or a
+constraint reads it, or when the next value of a relevant grounding does
+(the closure over the transition). An action grounding is *useful* when the
+next value of a relevant grounding reads it, or when setting it can raise
+the reward. Both sets are found together, from the assumption that no action
+grounding is useful: the source is folded with the useless groundings at
+their default (so a term like ``-1.0 * (a7 and s34)``, the cost of retaking
+course 7, reads no state while course 7 is never taken), the relevant
+groundings are closed over the folded transition, the groundings the
+relevant ones read (unfolded) join the useful ones, and so on until nothing
+changes.
+
+Whatever a useless grounding does, it touches only state that cannot reach
+the reward, and it can only lower the reward: a joint action that sets one
+is worth at most the same joint action without it. (Only where noop is legal in every state,
+that is where every constraint folds to true with all actions at their
+default: elsewhere nothing is left out.)
+In AcademicAdvising the useful courses are the program requirements and
+their prerequisites, transitively (6 of 27 on IPPC 2018's instance 4); the
+others only cost. The search leaves the useless groundings at their default,
+as it does the groundings the step never reads (`ScalarStep.inert_actions`).
+
+The reward test is interval arithmetic per additive term of the reward: a
+term that reads a useless grounding must be at most, with the grounding set
+to anything, what it is at the default (bool state and action groundings in
+[0, 1], draws of Uniform in [0, 1), everything else unbounded); a term that
+fails makes its groundings useful.
+"""
+
+from __future__ import annotations
+
+import ast
+import math
+import operator
+import re
+import time
+from collections.abc import Callable, Iterable
+from typing import Any
+
+from ...rddl.sim.scalar import _HELPERS, ScalarStep
+
+_STATE = re.compile(r"s(\d+)$")
+_ACTION = re.compile(r"a(\d+)$")
+
+INF = math.inf
+
+_BIN: dict[type, Callable[[Any, Any], Any]] = {
+    ast.Add: operator.add,
+    ast.Sub: operator.sub,
+    ast.Mult: operator.mul,
+    ast.Div: operator.truediv,
+    ast.FloorDiv: operator.floordiv,
+    ast.Mod: operator.mod,
+    ast.Pow: operator.pow,
+}
+_CMP: dict[type, Callable[[Any, Any], Any]] = {
+    ast.Eq: operator.eq,
+    ast.NotEq: operator.ne,
+    ast.Lt: operator.lt,
+    ast.LtE: operator.le,
+    ast.Gt: operator.gt,
+    ast.GtE: operator.ge,
+}
+
+
+class _Const:
+    """A folded value known without the state (see `_Folder`)."""
+
+    __slots__ = ("value",)
+
+    def __init__(self, value: Any):
+        self.value = value
+
+
+class _Folder:
+    """The groundings an expression of the step reads once some action
+    groundings are fixed: `deps(node)` is a `_Const` when the expression is
+    known without the state, else the set of names (sN, aN) it reads.
+    Locals (interm and next-state values, temporaries) are followed into
+    their definitions."""
+
+    def __init__(self, defs: dict[str, ast.expr], fixed: dict[str, Any], ns: dict[str, Any]):
+        self.defs = defs
+        self.fixed = fixed
+        self.ns = ns
+        self.memo: dict[str, _Const | frozenset[str]] = {}
+
+    def name(self, ident: str) -> _Const | frozenset[str]:
+        got = self.memo.get(ident)
+        if got is not None:
+            return got
+        if ident in self.fixed:
+            out: _Const | frozenset[str] = _Const(self.fixed[ident])
+        elif ident in self.defs:
+            self.memo[ident] = frozenset()  # (no cycles in straight-line code)
+            out = self.deps(self.defs[ident])
+        elif _STATE.match(ident) or _ACTION.match(ident):
+            out = frozenset([ident])
+        elif ident in self.ns:
+            out = _Const(self.ns[ident])
+        else:
+            out = frozenset()
+        self.memo[ident] = out
+        return out
+
+    def deps(self, node: ast.expr) -> _Const | frozenset[str]:
+        if isinstance(node, ast.Constant):
+            return _Const(node.value)
+        if isinstance(node, ast.Name):
+            return self.name(node.id)
+        if isinstance(node, ast.IfExp):
+            test = self.deps(node.test)
+            if isinstance(test, _Const):
+                return self.deps(node.body if test.value else node.orelse)
+            return _union(test, self.deps(node.body), self.deps(node.orelse))
+        if isinstance(node, ast.BoolOp):
+            is_and = isinstance(node.op, ast.And)
+            parts: list[_Const | frozenset[str]] = []
+            for v in node.values:
+                d = self.deps(v)
+                if isinstance(d, _Const) and not parts:
+                    # a leading known operand decides or drops out
+                    if bool(d.value) != is_and:
+                        return d
+                    continue
+                parts.append(d)
+            if not parts:
+                return _Const(d.value)
+            if len(parts) == 1:
+                return parts[0]
+            return _union(*parts)
+        if isinstance(node, ast.UnaryOp):
+            d = self.deps(node.operand)
+            if isinstance(d, _Const):
+                return _try(lambda: _unary(node.op, d.value), d)
+            return d
+        if isinstance(node, ast.BinOp):
+            left, right = self.deps(node.left), self.deps(node.right)
+            fn = _BIN.get(type(node.op))
+            if isinstance(left, _Const) and isinstance(right, _Const) and fn is not None:
+                return _try(lambda: fn(left.value, right.value), left, right)
+            return _union(left, right)
+        if isinstance(node, ast.Compare):
+            ds = [self.deps(node.left), *(self.deps(c) for c in node.comparators)]
+            if all(isinstance(d, _Const) for d in ds) and all(type(o) in _CMP for o in node.ops):
+                vals = [d.value for d in ds]  # type: ignore[union-attr]
+                return _try(
+                    lambda: all(
+                        _CMP[type(o)](x, y)
+                        for o, x, y in zip(node.ops, vals, vals[1:], strict=False)
+                    ),
+                    *ds,
+                )
+            return _union(*ds)
+        if isinstance(node, ast.Call):
+            fn_d = self.deps(node.func)
+            args = [self.deps(a) for a in node.args]
+            if (
+                isinstance(fn_d, _Const)
+                and callable(fn_d.value)
+                and not node.keywords
+                and all(isinstance(a, _Const) for a in args)
+            ):
+                return _try(lambda: fn_d.value(*(a.value for a in args)), *args)  # type: ignore[union-attr]
+            return _union(*args)
+        if isinstance(node, ast.Subscript):
+            base, index = self.deps(node.value), self.deps(node.slice)
+            if isinstance(base, _Const) and isinstance(index, _Const):
+                if isinstance(node.value, ast.Name) and node.value.id in ("U", "Z"):
+                    return frozenset()
+                return _try(lambda: base.value[index.value], base, index)
+            return _union(base, index)
+        if isinstance(node, ast.Tuple | ast.List):
+            return _union(*(self.deps(e) for e in node.elts))
+        found: list[_Const | frozenset[str]] = [
+            self.deps(c) for c in ast.iter_child_nodes(node) if isinstance(c, ast.expr)
+        ]
+        return _union(*found)
+
+
+def _unary(op: ast.unaryop, v: Any) -> Any:
+    if isinstance(op, ast.Not):
+        return not v
+    if isinstance(op, ast.USub):
+        return -v
+    if isinstance(op, ast.UAdd):
+        return +v
+    return ~v
+
+
+def _try(fn: Callable[[], Any], *parts: _Const | frozenset[str]) -> _Const | frozenset[str]:
+    try:
+        return _Const(fn())
+    except Exception:  # noqa: BLE001 - an error at run time: not foldable
+        return _union(*parts)
+
+
+def _union(*parts: _Const | frozenset[str]) -> frozenset[str]:
+    out: set[str] = set()
+    for p in parts:
+        if not isinstance(p, _Const):
+            out |= p
+    return frozenset(out)
+
+
+class _Intervals:
+    """Bounds of an expression of the step (lo, hi): bool state and action
+    groundings in [0, 1] (actions in `fixed` at their value), draws of
+    Uniform in [0, 1), everything unknown unbounded."""
+
+    def __init__(
+        self,
+        defs: dict[str, ast.expr],
+        fixed: dict[str, Any],
+        ns: dict[str, Any],
+        boolean: set[str],
+    ):
+        self.defs = defs
+        self.fixed = fixed
+        self.ns = ns
+        self.boolean = boolean
+        self.memo: dict[str, tuple[float, float]] = {}
+
+    def name(self, ident: str) -> tuple[float, float]:
+        got = self.memo.get(ident)
+        if got is not None:
+            return got
+        if ident in self.fixed:
+            v = float(self.fixed[ident])
+            out = (v, v)
+        elif ident in self.defs:
+            self.memo[ident] = (-INF, INF)
+            out = self.of(self.defs[ident])
+        elif ident in self.boolean:
+            out = (0.0, 1.0)
+        elif ident in self.ns and isinstance(self.ns[ident], int | float):
+            v = float(self.ns[ident])
+            out = (v, v)
+        else:
+            out = (-INF, INF)
+        self.memo[ident] = out
+        return out
+
+    def of(self, node: ast.expr) -> tuple[float, float]:
+        got = self._of(node)
+        lo, hi = got
+        if math.isnan(lo) or math.isnan(hi):
+            return (-INF, INF)
+        return got
+
+    def _of(self, node: ast.expr) -> tuple[float, float]:
+        if isinstance(node, ast.Constant):
+            if isinstance(node.value, bool | int | float):
+                v = float(node.value)
+                return (v, v)
+            return (-INF, INF)
+        if isinstance(node, ast.Name):
+            return self.name(node.id)
+        if isinstance(node, ast.IfExp):
+            t = self.of(node.test)
+            if t == (0.0, 0.0):
+                return self.of(node.orelse)
+            if t[0] > 0 or t[1] < 0:
+                return self.of(node.body)
+            return _hull(self.of(node.body), self.of(node.orelse))
+        if isinstance(node, ast.BoolOp):
+            # `x and y` is its first falsy operand, else its last (`or`: the
+            # first truthy one): a sure operand that cannot stop it drops out
+            is_and = isinstance(node.op, ast.And)
+            out: tuple[float, float] | None = None
+            last = len(node.values) - 1
+            for k, v in enumerate(node.values):
+                iv = self.of(v)
+                falsy = iv == (0.0, 0.0)
+                truthy = iv[0] > 0 or iv[1] < 0
+                stops = falsy if is_and else truthy
+                passes = truthy if is_and else falsy
+                if passes and k < last:
+                    continue
+                out = iv if out is None else _hull(out, iv)
+                if stops:
+                    break
+            assert out is not None
+            return out
+        if isinstance(node, ast.UnaryOp):
+            lo, hi = self.of(node.operand)
+            if isinstance(node.op, ast.Not):
+                return (0.0, 1.0)
+            if isinstance(node.op, ast.USub):
+                return (-hi, -lo)
+            if isinstance(node.op, ast.UAdd):
+                return (lo, hi)
+            return (-INF, INF)
+        if isinstance(node, ast.BinOp):
+            a, b = self.of(node.left), self.of(node.right)
+            if isinstance(node.op, ast.Add):
+                return (a[0] + b[0], a[1] + b[1])
+            if isinstance(node.op, ast.Sub):
+                return (a[0] - b[1], a[1] - b[0])
+            if isinstance(node.op, ast.Mult):
+                return _mul(a, b)
+            if isinstance(node.op, ast.Div) and (b[0] > 0 or b[1] < 0):
+                return _mul(a, (1 / b[1], 1 / b[0]) if b[0] != 0 and b[1] != 0 else (-INF, INF))
+            return (-INF, INF)
+        if isinstance(node, ast.Compare):
+            return (0.0, 1.0)
+        if isinstance(node, ast.Call):
+            if isinstance(node.func, ast.Name) and node.func.id == "bool":
+                return (0.0, 1.0)
+            return (-INF, INF)
+        if isinstance(node, ast.Subscript):
+            if isinstance(node.value, ast.Name) and node.value.id == "U":
+                return (0.0, 1.0)
+            return (-INF, INF)
+        return (-INF, INF)
+
+
+def _hull(a: tuple[float, float], b: tuple[float, float]) -> tuple[float, float]:
+    return (min(a[0], b[0]), max(a[1], b[1]))
+
+
+def _mul(a: tuple[float, float], b: tuple[float, float]) -> tuple[float, float]:
+    products = []
+    for x in a:
+        for y in b:
+            if (x == 0 and math.isinf(y)) or (y == 0 and math.isinf(x)):
+                products.append(0.0)
+            else:
+                products.append(x * y)
+    return (min(products), max(products))
+
+
+def _terms(node: ast.expr, sign: int = 1) -> Iterable[tuple[int, ast.expr]]:
+    """The additive terms of an expression, with their signs."""
+    if isinstance(node, ast.BinOp) and isinstance(node.op, ast.Add | ast.Sub):
+        yield from _terms(node.left, sign)
+        yield from _terms(node.right, sign if isinstance(node.op, ast.Add) else -sign)
+    elif isinstance(node, ast.UnaryOp) and isinstance(node.op, ast.USub):
+        yield from _terms(node.operand, -sign)
+    else:
+        yield sign, node
+
+
+def useless_actions(
+    fast: ScalarStep, time_limit: float = 2.0, clock: Callable[[], float] = time.monotonic
+) -> list[tuple[str, tuple[int, ...]]]:
+    """The action groundings of the step that can never pay (see the module
+    docstring), without those the step never reads; none when the analysis
+    takes longer than `time_limit` seconds."""
+    started = clock()
+    tree = ast.parse(fast.source)
+    fn = tree.body[0]
+    assert isinstance(fn, ast.FunctionDef)
+    defs: dict[str, ast.expr] = {}
+    returned: ast.expr | None = None
+    for stmt in fn.body:
+        if isinstance(stmt, ast.Assign) and len(stmt.targets) == 1:
+            target = stmt.targets[0]
+            if isinstance(target, ast.Name):
+                defs[target.id] = stmt.value
+        elif isinstance(stmt, ast.Return):
+            returned = stmt.value
+    if returned is None or not isinstance(returned, ast.Tuple) or "r" not in defs:
+        return []
+    nxt = returned.elts[0]
+    if not isinstance(nxt, ast.Tuple) or len(nxt.elts) != len(fast.state_keys):
+        return []
+    next_of = list(nxt.elts)
+    constraints: list[ast.expr] = []
+    if fast.legal_source is not None:
+        lfn = ast.parse(fast.legal_source).body[0]
+        assert isinstance(lfn, ast.FunctionDef)
+        for stmt in lfn.body:
+            if isinstance(stmt, ast.Assign) and len(stmt.targets) == 1:
+                target = stmt.targets[0]
+                if isinstance(target, ast.Name) and target.id not in defs:
+                    defs[target.id] = stmt.value
+            elif isinstance(stmt, ast.Return) and stmt.value is not None:
+                constraints.append(stmt.value)
+    elif fast.constrained:
+        return []  # constraints the analysis cannot read: nothing is pruned
+    ns: dict[str, Any] = dict(_HELPERS)
+    ns.update(fast.tables)
+    ns["bool"] = bool
+    ns["abs"] = abs
+    ns["min"] = min
+    ns["max"] = max
+    ns["int"] = int
+    ns["float"] = float
+    n_actions = len(fast.action_keys)
+    noop = _Folder(defs, {f"a{j}": fast.noop[j] for j in range(n_actions)}, ns)
+    for expr in constraints:
+        d = noop.deps(expr)
+        if not (isinstance(d, _Const) and d.value):
+            # noop may be illegal somewhere: a joint action without its useless
+            # groundings might be too, so nothing is left out
+            return []
+    inert = set(fast.inert_actions)
+    n_actions = len(fast.action_keys)
+    candidates = {f"a{j}" for j in range(n_actions) if fast.action_keys[j] not in inert}
+    defaults = {f"a{j}": fast.noop[j] for j in range(n_actions)}
+    boolean = {
+        f"s{i}" for i, (name, _) in enumerate(fast.state_keys) if _range(fast, name) == "bool"
+    } | {f"a{j}" for j, (name, _) in enumerate(fast.action_keys) if _range(fast, name) == "bool"}
+    free = _Folder(defs, {}, ns)
+    reads = [free.deps(e) for e in next_of]  # unfolded: what each next value reads
+    reward_terms = list(_terms(defs["r"]))
+    useful: set[str] = set()
+    while True:
+        if clock() - started > time_limit:
+            return []
+        useless = candidates - useful
+        fixed = {a: defaults[a] for a in useless}
+        folder = _Folder(defs, fixed, ns)
+        seeds: set[str] = set()
+        for expr in [defs["r"], defs.get("done", ast.Constant(False)), *constraints]:
+            d = folder.deps(expr)
+            if not isinstance(d, _Const):
+                seeds |= {x for x in d if _STATE.match(x)}
+        relevant: set[int] = set()
+        todo = [int(x[1:]) for x in seeds]
+        while todo:
+            i = todo.pop()
+            if i in relevant:
+                continue
+            relevant.add(i)
+            d = folder.deps(next_of[i])
+            if not isinstance(d, _Const):
+                todo.extend(int(x[1:]) for x in d if _STATE.match(x) and int(x[1:]) not in relevant)
+        grown: set[str] = set()
+        for i in relevant:
+            d = reads[i]
+            if not isinstance(d, _Const):
+                grown |= {x for x in d if x in useless}
+        done_d = free.deps(defs.get("done", ast.Constant(False)))
+        if not isinstance(done_d, _Const):
+            grown |= {x for x in done_d if x in useless}
+        low = _Intervals(defs, fixed, ns, boolean)
+        high = _Intervals(defs, {}, ns, boolean)
+        for sign, term in reward_terms:
+            d = free.deps(term)
+            if isinstance(d, _Const):
+                continue
+            mentioned = {x for x in d if x in useless}
+            if not mentioned:
+                continue
+            lo0, hi0 = low.of(term)
+            lo1, hi1 = high.of(term)
+            # the most the term can gain (by its sign) from setting them
+            gain = (hi1 - lo0) if sign > 0 else (hi0 - lo1)
+            if not gain <= 0:
+                grown |= mentioned
+        if not grown:
+            break
+        useful |= grown
+    keys = fast.action_keys
+    return [keys[int(a[1:])] for a in sorted(candidates - useful, key=lambda x: int(x[1:]))]
+
+
+def _range(fast: ScalarStep, name: str) -> str:
+    p = fast.sim.model.pvariables.get(name)
+    return "" if p is None else str(p.range)
