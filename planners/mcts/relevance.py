@@ -370,14 +370,15 @@ def useless_actions(
         return []
     next_of = list(nxt.elts)
     constraints: list[ast.expr] = []
+    cdefs: dict[str, ast.expr] = {}  # the constraints' own locals (their names may be the step's)
     if fast.legal_source is not None:
         lfn = ast.parse(fast.legal_source).body[0]
         assert isinstance(lfn, ast.FunctionDef)
         for stmt in lfn.body:
             if isinstance(stmt, ast.Assign) and len(stmt.targets) == 1:
                 target = stmt.targets[0]
-                if isinstance(target, ast.Name) and target.id not in defs:
-                    defs[target.id] = stmt.value
+                if isinstance(target, ast.Name):
+                    cdefs[target.id] = stmt.value
             elif isinstance(stmt, ast.Return) and stmt.value is not None:
                 constraints.append(stmt.value)
     elif fast.constrained:
@@ -391,7 +392,7 @@ def useless_actions(
     ns["int"] = int
     ns["float"] = float
     n_actions = len(fast.action_keys)
-    noop = _Folder(defs, {f"a{j}": fast.noop[j] for j in range(n_actions)}, ns)
+    noop = _Folder(cdefs, {f"a{j}": fast.noop[j] for j in range(n_actions)}, ns)
     for expr in constraints:
         d = noop.deps(expr)
         if not (isinstance(d, _Const) and d.value):
@@ -399,7 +400,6 @@ def useless_actions(
             # groundings might be too, so nothing is left out
             return []
     inert = set(fast.inert_actions)
-    n_actions = len(fast.action_keys)
     candidates = {f"a{j}" for j in range(n_actions) if fast.action_keys[j] not in inert}
     defaults = {f"a{j}": fast.noop[j] for j in range(n_actions)}
     boolean = {
@@ -415,9 +415,14 @@ def useless_actions(
         useless = candidates - useful
         fixed = {a: defaults[a] for a in useless}
         folder = _Folder(defs, fixed, ns)
+        cfolder = _Folder(cdefs, fixed, ns)
         seeds: set[str] = set()
-        for expr in [defs["r"], defs.get("done", ast.Constant(False)), *constraints]:
-            d = folder.deps(expr)
+        for f, expr in [
+            (folder, defs["r"]),
+            (folder, defs.get("done", ast.Constant(False))),
+            *((cfolder, c) for c in constraints),
+        ]:
+            d = f.deps(expr)
             if not isinstance(d, _Const):
                 seeds |= {x for x in d if _STATE.match(x)}
         relevant: set[int] = set()
