@@ -42,7 +42,7 @@ from ..server.app import (
 )
 from ..server.config import DEFAULT_ACCEPT_RATE, ServerConfig
 from ..server.limits import LISTEN_BACKLOG, AcceptPacer
-from ..server.session import Services
+from ..server.session import Services, Session
 from .actions import Handlers
 from .clock import Clock, WallClock
 from .config import SensingConfig
@@ -567,8 +567,15 @@ async def _sessions(
                 if run.serving and run.goal is None:
                     await _next_goal(dispatcher, run)
                 stream, key = await receive.receive()
+                playing: list[Session] = []
                 try:
-                    session = await play_connection(svc, stream)
+                    session = await play_connection(svc, stream, started=playing.append)
+                except trio.Cancelled:
+                    # stopped while the session said goodbye: a session that had
+                    # ended (its record written) still counts for the goal served
+                    if run.serving and playing and playing[0].status in ("finished", "timeout"):
+                        _served(dispatcher, run, playing[0].status)
+                    raise
                 finally:
                     table.remove(key)
                 if not session.requested:

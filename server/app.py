@@ -207,16 +207,23 @@ def connection_table(config: ServerConfig) -> ConnectionTable:
 
 
 async def play_connection(
-    svc: Services, stream: trio.SocketStream, session_id: int | None = None
+    svc: Services,
+    stream: trio.SocketStream,
+    session_id: int | None = None,
+    started: Callable[[Session], object] | None = None,
 ) -> Session:
     """Play the session of one accepted connection to its end (numbered by
-    `svc` unless `session_id` is given)."""
+    `svc` unless `session_id` is given). `started` gets the session before it
+    plays: a caller cancelled while the session says goodbye (its status and
+    record already final) still knows how it ended."""
     try:
         host, cport = stream.socket.getpeername()[:2]
         peer = f"{host}:{cport}"
     except OSError:
         peer = "?"
     session = Session(svc, stream, peer, session_id)
+    if started is not None:
+        started(session)
     await session.run()
     svc.last_status = session.status
     return session
