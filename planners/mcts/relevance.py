@@ -119,16 +119,19 @@ class _Folder:
         if isinstance(node, ast.BoolOp):
             is_and = isinstance(node.op, ast.And)
             parts: list[_Const | frozenset[str]] = []
+            known: _Const | None = None
             for v in node.values:
                 d = self.deps(v)
                 if isinstance(d, _Const) and not parts:
                     # a leading known operand decides or drops out
                     if bool(d.value) != is_and:
                         return d
+                    known = d
                     continue
                 parts.append(d)
             if not parts:
-                return _Const(d.value)
+                assert known is not None
+                return known
             if len(parts) == 1:
                 return parts[0]
             return _union(*parts)
@@ -272,8 +275,8 @@ class _Intervals:
             is_and = isinstance(node.op, ast.And)
             out: tuple[float, float] | None = None
             last = len(node.values) - 1
-            for k, v in enumerate(node.values):
-                iv = self.of(v)
+            for k, operand in enumerate(node.values):
+                iv = self.of(operand)
                 falsy = iv == (0.0, 0.0)
                 truthy = iv[0] > 0 or iv[1] < 0
                 stops = falsy if is_and else truthy
