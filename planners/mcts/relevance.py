@@ -172,8 +172,6 @@ class _Folder:
         if isinstance(node, ast.Subscript):
             base, index = self.deps(node.value), self.deps(node.slice)
             if isinstance(base, _Const) and isinstance(index, _Const):
-                if isinstance(node.value, ast.Name) and node.value.id in ("U", "Z"):
-                    return frozenset()
                 return _try(lambda: base.value[index.value], base, index)
             return _union(base, index)
         if isinstance(node, ast.Tuple | ast.List):
@@ -408,9 +406,18 @@ def useless_actions(
     boolean = {
         f"s{i}" for i, (name, _) in enumerate(fast.state_keys) if _range(fast, name) == "bool"
     } | {f"a{j}" for j, (name, _) in enumerate(fast.action_keys) if _range(fast, name) == "bool"}
+    done = defs.get("done", ast.Constant(False))
+    # unfolded (no action fixed): what each next value, the termination and
+    # each reward term read, and the bounds of those terms that read an action
     free = _Folder(defs, {}, ns)
-    reads = [free.deps(e) for e in next_of]  # unfolded: what each next value reads
-    reward_terms = list(_terms(defs["r"]))
+    reads = [_names(free.deps(e)) for e in next_of]
+    done_reads = _names(free.deps(done))
+    high = _Intervals(defs, {}, ns, boolean)
+    acting_terms = []
+    for sign, term in _terms(defs["r"]):
+        read = _names(free.deps(term))
+        if any(_ACTION.match(x) for x in read):
+            acting_terms.append((sign, term, read, high.of(term)))
     useful: set[str] = set()
     while True:
         if clock() - started > time_limit:
@@ -422,12 +429,10 @@ def useless_actions(
         seeds: set[str] = set()
         for f, expr in [
             (folder, defs["r"]),
-            (folder, defs.get("done", ast.Constant(False))),
+            (folder, done),
             *((cfolder, c) for c in constraints),
         ]:
-            d = f.deps(expr)
-            if not isinstance(d, _Const):
-                seeds |= {x for x in d if _STATE.match(x)}
+            seeds |= {x for x in _names(f.deps(expr)) if _STATE.match(x)}
         relevant: set[int] = set()
         todo = [int(x[1:]) for x in seeds]
         while todo:
@@ -435,28 +440,19 @@ def useless_actions(
             if i in relevant:
                 continue
             relevant.add(i)
-            d = folder.deps(next_of[i])
-            if not isinstance(d, _Const):
-                todo.extend(int(x[1:]) for x in d if _STATE.match(x) and int(x[1:]) not in relevant)
-        grown: set[str] = set()
+            nxt_reads = _names(folder.deps(next_of[i]))
+            todo.extend(
+                int(x[1:]) for x in nxt_reads if _STATE.match(x) and int(x[1:]) not in relevant
+            )
+        grown = done_reads & useless
         for i in relevant:
-            d = reads[i]
-            if not isinstance(d, _Const):
-                grown |= {x for x in d if x in useless}
-        done_d = free.deps(defs.get("done", ast.Constant(False)))
-        if not isinstance(done_d, _Const):
-            grown |= {x for x in done_d if x in useless}
+            grown |= reads[i] & useless
         low = _Intervals(defs, fixed, ns, boolean)
-        high = _Intervals(defs, {}, ns, boolean)
-        for sign, term in reward_terms:
-            d = free.deps(term)
-            if isinstance(d, _Const):
-                continue
-            mentioned = {x for x in d if x in useless}
+        for sign, term, read, (lo1, hi1) in acting_terms:
+            mentioned = read & useless
             if not mentioned:
                 continue
             lo0, hi0 = low.of(term)
-            lo1, hi1 = high.of(term)
             # the most the term can gain (by its sign) from setting them
             gain = (hi1 - lo0) if sign > 0 else (hi0 - lo1)
             if not gain <= 0:
@@ -466,6 +462,11 @@ def useless_actions(
         useful |= grown
     keys = fast.action_keys
     return [keys[int(a[1:])] for a in sorted(candidates - useful, key=lambda x: int(x[1:]))]
+
+
+def _names(d: _Const | frozenset[str]) -> frozenset[str]:
+    """The names a folded value reads (none when it is known)."""
+    return frozenset() if isinstance(d, _Const) else d
 
 
 def _range(fast: ScalarStep, name: str) -> str:
