@@ -23,12 +23,14 @@ in the order it sent them; a coroutine function runs in its own task, so a
 slow one (waiting for a robot) does not hold up the rest, and its reply
 comes when it is done.
 
-Nothing a client sends ends the server or the connection. A line that is not
+Nothing a client sends or does ends the server: a reset, or a client gone
+with replies unread, ends its own connection only. A line that is not
 JSON, not an object, names no known method, has bad params, is too long, or
 whose handler raises, gets an error reply (with the request's id when it
 had one, else null) and the connection reads on. Error codes:
 ``parse-error``, ``bad-request``, ``unknown-method``, ``bad-params``,
-``line-too-long``, ``internal-error``, or the `code` of the exception the
+``line-too-long``, ``too-deep`` (arrays and objects nested more than
+`MAX_DEPTH`), ``internal-error``, or the `code` of the exception the
 handler raised (`RequestError`, or any exception with a string `code`, such
 as `KBError`'s).
 """
@@ -40,6 +42,7 @@ import itertools
 import json
 import logging
 import math
+import re
 import threading
 from collections.abc import AsyncIterator, Callable
 from contextlib import asynccontextmanager
@@ -52,6 +55,7 @@ log = logging.getLogger(__name__)
 
 DEFAULT_HOST = "127.0.0.1"
 MAX_LINE = 1 << 20  # bytes; longer lines are refused (and skipped to their end)
+MAX_DEPTH = 32  # arrays and objects in arrays and objects; deeper requests are refused
 QUEUE_SIZE = 10_000  # lines waiting to be written to one connection
 
 Handler = Callable[[dict[str, Any], "Connection"], Any]
@@ -79,6 +83,45 @@ def _finite(obj: Any) -> Any:
     if isinstance(obj, (list, tuple)):
         return [_finite(v) for v in obj]
     return obj
+
+
+def _why(err: BaseException) -> str:
+    """What a stream error says (trio's wrap the OSError under it)."""
+    cause = err.__cause__ or err.__context__
+    if isinstance(cause, OSError) and not str(err):
+        return str(cause)
+    return str(err) or type(err).__name__
+
+
+def too_deep(line: bytes, limit: int) -> bool:
+    """Whether the JSON text `line` nests arrays and objects deeper than
+    `limit` (brackets inside strings do not count). Linear in the line: the
+    parser recurses once per level, and Python's recursion limit is no
+    bound to meet from a socket."""
+    if line.count(b"[") + line.count(b"{") <= limit:
+        return False
+    depth = 0
+    pos = 0
+    while (m := _TOKEN.search(line, pos)) is not None:
+        c = m.group()
+        if c == b'"':
+            end = _STRING_REST.match(line, m.end())
+            if end is None:
+                return False  # an unterminated string: not JSON, the parser says so
+            pos = end.end()
+            continue
+        pos = m.end()
+        if c in (b"[", b"{"):
+            depth += 1
+            if depth > limit:
+                return True
+        else:
+            depth -= 1
+    return False
+
+
+_TOKEN = re.compile(rb'[\[\]{}"]')
+_STRING_REST = re.compile(rb'[^"\\]*+(?:\\.[^"\\]*+)*+"', re.DOTALL)
 
 
 def error_reply(rid: Any, code: str, message: str) -> dict[str, Any]:
@@ -260,17 +303,25 @@ class JsonlServer:
                         # way have nobody to wait for their replies.
                         requests.cancel_scope.cancel()
                     conn._send.close()  # the writer sends what is queued, then ends
-        except (trio.BrokenResourceError, trio.ClosedResourceError, OSError) as err:
-            log.info("%s: %s: %s", self.name, conn, err)
+        except* (trio.BrokenResourceError, trio.ClosedResourceError, OSError) as group:
+            log.info("%s: %s: %s", self.name, conn, _why(group.exceptions[0]))
+        except* Exception:  # a bug: this connection ends, the server goes on
+            log.exception("%s: %s failed", self.name, conn)
         finally:
             self.connections.discard(conn)
             conn._finish()
             log.info("%s: %s closed", self.name, conn)
 
     async def _writer(self, conn: Connection, stream: trio.abc.Stream) -> None:
-        async with conn._receive:
-            async for data in conn._receive:
-                await stream.send_all(data)
+        try:
+            async with conn._receive:
+                async for data in conn._receive:
+                    await stream.send_all(data)
+        except (trio.BrokenResourceError, trio.ClosedResourceError, OSError) as err:
+            # the client reset the connection (or closed it with replies
+            # unread): this connection ends, nothing else does
+            log.info("%s: %s: cannot send: %s", self.name, conn, _why(err))
+            conn.close()
 
     async def _reader(
         self, conn: Connection, stream: trio.abc.Stream, nursery: trio.Nursery
@@ -278,7 +329,12 @@ class JsonlServer:
         buf = bytearray()
         skipping = False  # inside a line that was too long
         while True:
-            data = await stream.receive_some(65536)
+            try:
+                data = await stream.receive_some(65536)
+            except (trio.BrokenResourceError, trio.ClosedResourceError, OSError) as err:
+                log.info("%s: %s: cannot receive: %s", self.name, conn, _why(err))
+                conn.close()
+                return
             if not data:
                 if buf.strip() and not skipping:
                     await self._line(conn, bytes(buf), nursery)
@@ -311,10 +367,20 @@ class JsonlServer:
                     await self._line(conn, line, nursery)
 
     async def _line(self, conn: Connection, line: bytes, nursery: trio.Nursery) -> None:
+        if too_deep(line, MAX_DEPTH):
+            conn.post(
+                error_reply(
+                    None, "too-deep", f"a request nests arrays and objects deeper than {MAX_DEPTH}"
+                )
+            )
+            return
         try:
             request = json.loads(line)
         except (UnicodeDecodeError, json.JSONDecodeError) as err:
             conn.post(error_reply(None, "parse-error", f"not JSON: {err}"))
+            return
+        except RecursionError:  # (too_deep should have told)
+            conn.post(error_reply(None, "too-deep", "a request nests too deep"))
             return
         if not isinstance(request, dict):
             conn.post(error_reply(None, "bad-request", "a request is a JSON object"))
