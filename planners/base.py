@@ -52,6 +52,7 @@ BUILTIN_PLANNERS: dict[str, str] = {
     "mcts": "ippc.planners.mcts:MCTSPlanner",
     "replan": "ippc.planners.replan:ReplanPlanner",
     "exact": "ippc.planners.exact:ExactPlanner",
+    "mpc": "ippc.planners.mpc:MPCPlanner",
 }
 
 
