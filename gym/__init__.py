@@ -21,8 +21,12 @@ between its values and the simulator's batch-first arrays; `env` holds what
 both environments share (`_Instance`: the simulator, the legality check of
 actions, the text view) and `RDDLEnv`; `vector` holds `RDDLVectorEnv`, whose
 states each draw from their own generator through `streams`, so that its
-environment i is exactly an `RDDLEnv` with the same seed. docs/gym.md is
-the user's page.
+environment i is exactly an `RDDLEnv` with the same seed. `flat` gives flat
+spaces (`FlatRDDLEnv`, registered as `ippc/RDDLFlat-v0`: a Box observation,
+a Discrete action over the legal joint actions where they can be enumerated,
+else MultiBinary or Box); `baselines` (not imported here: it needs
+stable-baselines3) puts an RDDLVectorEnv behind SB3's VecEnv with those
+spaces. docs/gym.md is the user's page.
 
 May import `ippc.rddl` and gymnasium.
 """
@@ -32,11 +36,17 @@ from __future__ import annotations
 import gymnasium
 
 from .env import ILLEGAL_ACTIONS, IllegalActionError, RDDLEnv
+from .flat import ACTION_SPACES, MAX_ACTIONS, FlatRDDLEnv, FlatSpaces
 from .spaces import grounded_name
 from .vector import STREAMS, RDDLVectorEnv
 
 __all__ = [
+    "ACTION_SPACES",
     "ENV_ID",
+    "FLAT_ENV_ID",
+    "MAX_ACTIONS",
+    "FlatRDDLEnv",
+    "FlatSpaces",
     "ILLEGAL_ACTIONS",
     "STREAMS",
     "IllegalActionError",
@@ -47,6 +57,8 @@ __all__ = [
 
 #: The id both environments are registered under.
 ENV_ID = "ippc/RDDL-v0"
+#: The id of `FlatRDDLEnv` (flat spaces, for stable-baselines3 and the like).
+FLAT_ENV_ID = "ippc/RDDLFlat-v0"
 
 if ENV_ID not in gymnasium.registry:
     gymnasium.register(
@@ -55,6 +67,14 @@ if ENV_ID not in gymnasium.registry:
         vector_entry_point="ippc.gym.vector:RDDLVectorEnv",
         # the horizon truncates inside the environment (a TimeLimit would not
         # know a POMDP's or an instance's horizon)
+        max_episode_steps=None,
+        nondeterministic=False,
+    )
+
+if FLAT_ENV_ID not in gymnasium.registry:
+    gymnasium.register(
+        id=FLAT_ENV_ID,
+        entry_point="ippc.gym.flat:FlatRDDLEnv",
         max_episode_steps=None,
         nondeterministic=False,
     )
