@@ -104,6 +104,24 @@ def _host_port(value: str | None, what: str) -> tuple[str, int] | None:
     default=None,
     help="Folder for external planners' output (default: DB.logs beside the database).",
 )
+@click.option(
+    "--memory-budget",
+    "memory_mb",
+    type=click.FloatRange(min=1),
+    default=None,
+    metavar="MB",
+    help="Resident memory a job's process may hold before it is killed and the job "
+    "failed (default: 80% of the memory available at start, shared by the jobs at once).",
+)
+@click.option(
+    "--grace",
+    type=click.FloatRange(min=0),
+    default=60.0,
+    show_default=True,
+    metavar="SECONDS",
+    help="How long a session may run past its budget before its process is stopped and "
+    "the job recorded as timed out.",
+)
 @click.option("-v", "--verbose", is_flag=True, help="Log every session.")
 @web_options
 @click.option(
@@ -121,19 +139,22 @@ def run(
     server: str | None,
     retry_failed: bool,
     logs: Path | None,
+    memory_mb: float | None,
+    grace: float,
     verbose: bool,
     web: int | None,
     web_host: str | None,
     rules: str,
 ) -> None:
     """Play every planner on every instance of EXPERIMENT_FILE; again, to resume."""
+    from .progress import Progress
     from .runner import ClusterError, run_batch
 
     _setup_logging(verbose)
     if cluster is not None and server is not None:
         raise click.UsageError("--cluster and --server do not go together")
     options = WebOptions.from_cli(web, web_host)
-    page = None
+    page = summary = None
     try:
         experiment, instances = check_experiment(experiment_file)  # every problem at once
         observer = None
@@ -149,6 +170,9 @@ def run(
             retry_failed=retry_failed,
             log_dir=logs or db.with_name(db.name + ".logs"),
             observer=observer,
+            progress=Progress(stream=sys.stderr),
+            memory_mb=memory_mb,
+            grace=grace,
         )
     except ExperimentError as err:
         for problem in err.problems:
@@ -159,8 +183,8 @@ def run(
     except ClusterError as err:
         raise click.ClickException(f"--cluster: {err}") from None
     finally:
-        if page is not None:
-            page.stop()
+        if page is not None and (summary is None or summary.interrupted):
+            page.stop()  # (a run that ended keeps its page up: below)
     done = summary.skipped + summary.finished
     failed = f"{summary.failed} failed"
     if summary.failed_before:
@@ -176,6 +200,17 @@ def run(
     if summary.interrupted:
         click.echo("interrupted: run the same command again to resume", err=True)
         raise SystemExit(130)
+    if page is not None:
+        page.keep_up(say=lambda line: click.echo(line, err=True))  # until Ctrl-C/SIGTERM
+    if summary.failures:
+        shown = summary.failures[:20]
+        click.echo(f"{len(summary.failures)} job(s) failed:", err=True)
+        for key, why in shown:
+            click.echo(f"  {key}: {why}", err=True)
+        if len(summary.failures) > len(shown):
+            click.echo(f"  ... and {len(summary.failures) - len(shown)} more", err=True)
+        click.echo(f"(their reasons are in {db}; --retry-failed plays them again)", err=True)
+        raise SystemExit(1)
 
 
 def _start_page(options: WebOptions, rules: str) -> tuple[Any, Any]:

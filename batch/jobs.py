@@ -1,13 +1,19 @@
 """Jobs: one session of one planner on one instance, with its seeds, and how it is played.
 
-`run_job` is what a worker process (the local pool or a Dask worker) runs. It starts an
+`play_job` is what the batch hands out (to a thread of this process, or to a Dask
+worker): it runs `run_job` in a child process of its own (`ippc.client.guard`), so that
+the session's budget and the job's memory budget hold whatever the planner does: a
+child still running `grace` seconds past its session's budget is stopped and the job
+recorded as ``timeout``; one over its memory budget is killed and the job recorded as
+``failed``, its reason beginning ``out of memory``. `run_job` starts an
 in-process ``rddl-server`` on 127.0.0.1 for the job's one instance, with the job's server
 seed and the experiment's rounds and session budget, records the session in an in-memory
 `ResultStore`, plays it with the planner (a registered planner driven by
 ``rddl-client``'s `run_session`; an `ExternalPlanner` such as PROST; or an external
 command) and returns everything recorded as a plain, picklable `JobResult`. The batch's
 parent process is the only writer of the result database (`batch.results`), so workers
-on other machines need no shared file system.
+on other machines need no shared file system; a job carries the text of its RDDL files
+too, so that a worker anywhere plays it without the experiment's folder.
 
 Seeds are derived from the experiment's seed, the instance and the planner label only
 (`stable_seed`), so that a job played again (after a kill, on another machine) plays the
@@ -22,7 +28,10 @@ import logging
 import math
 import os
 import signal
+import socket
 import subprocess
+import tempfile
+import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -36,7 +45,17 @@ from ..server.store import ResultStore, encode_fluents
 from .experiment import Experiment, PlannerSpec, fill_command
 from .instances import ResolvedInstance
 
-__all__ = ["Job", "JobResult", "ProgressQueue", "Reporter", "build_jobs", "run_job", "stable_seed"]
+__all__ = [
+    "Job",
+    "JobResult",
+    "ProgressQueue",
+    "Reporter",
+    "build_jobs",
+    "mean_reward",
+    "play_job",
+    "run_job",
+    "stable_seed",
+]
 
 log = logging.getLogger(__name__)
 
@@ -68,6 +87,9 @@ class Job:
     planner_seed: int
     log_dir: str | None = None  # where an external command's output goes
     server: tuple[str, int] | None = None  # play against this server instead of our own
+    texts: tuple[str, ...] = ()  # the text of each of `files`, for workers without them
+    memory_mb: float | None = None  # the job's memory budget (None: the worker's default)
+    grace: float = HARD_LIMIT_GRACE  # seconds past the session budget before it is stopped
 
     @property
     def key(self) -> str:
@@ -95,12 +117,23 @@ def build_jobs(
     *,
     log_dir: str | None = None,
     server: tuple[str, int] | None = None,
+    memory_mb: float | None = None,
+    grace: float = HARD_LIMIT_GRACE,
 ) -> list[Job]:
     """Every planner x instance of the experiment, instance by instance (so that the
-    baselines of an instance finish early and partial scores mean something)."""
+    baselines of an instance finish early and partial scores mean something). Each
+    job carries its files' absolute paths and texts."""
     jobs = []
+    texts: dict[str, str] = {}
     for inst in instances:
         server_seed = stable_seed(experiment.seed, "server", inst.name)
+        # only the files this instance is read from (a folder's spec names them all)
+        files = tuple(
+            str(Path(f).resolve()) for f in (inst.files if inst.paired else inst.model.files())
+        )
+        for f in files:
+            if f not in texts:
+                texts[f] = Path(f).read_text(encoding="utf-8")
         for spec in experiment.planners:
             jobs.append(
                 Job(
@@ -108,7 +141,7 @@ def build_jobs(
                     planner=spec,
                     instance=inst.name,
                     domain=inst.domain,
-                    files=inst.files,
+                    files=files,
                     paired=inst.paired,
                     rounds=experiment.rounds,
                     timeout=spec.timeout or experiment.timeout,
@@ -116,9 +149,22 @@ def build_jobs(
                     planner_seed=stable_seed(experiment.seed, "planner", spec.label, inst.name),
                     log_dir=log_dir,
                     server=server,
+                    texts=tuple(texts[f] for f in files),
+                    memory_mb=memory_mb,
+                    grace=grace,
                 )
             )
     return jobs
+
+
+def mean_reward(result: JobResult) -> float | None:
+    """The mean reward of a result's counted rounds (None: no round ended)."""
+    rewards = [
+        float(r["reward"])
+        for r in result.rounds
+        if r.get("counted", True) and r.get("reward") is not None
+    ]
+    return sum(rewards) / len(rewards) if rewards else None
 
 
 # ---------------------------------------------------------------- in the worker
@@ -156,11 +202,23 @@ class ProgressQueue:
 class _ReportingStore(ResultStore):
     """The job's in-memory store, telling `report` of each round and turn it records."""
 
-    def __init__(self, key: str, report: Reporter) -> None:
+    def __init__(
+        self, key: str, report: Reporter, on_session: Callable[[], None] | None = None
+    ) -> None:
         super().__init__(":memory:", owner=f"batch:{key}")
         self._key = key
         self._report = report
+        self._on_session = on_session
         self._round_num: dict[int, int] = {}
+
+    def start_session(self, *args: Any, **kwargs: Any) -> int:
+        sid = super().start_session(*args, **kwargs)
+        if self._on_session is not None:
+            try:
+                self._on_session()
+            except Exception:  # noqa: BLE001 - best effort, as the reports
+                log.debug("session start of %s not reported", self._key, exc_info=True)
+        return sid
 
     def start_round(self, session: int, *, round_num: int, counted: bool, started_at: float) -> int:
         rid = super().start_round(
@@ -182,10 +240,36 @@ class _ReportingStore(ResultStore):
 
 
 def _registry(job: Job) -> Any:
+    if not job.texts:
+        for f in job.files:
+            if not Path(f).is_file():
+                raise ValueError(
+                    f"{f}: no such file on this machine ({socket.gethostname()}); the job "
+                    f"needs it for instance {job.instance}"
+                )
+        return _registry_from(job, job.files)
+    with tempfile.TemporaryDirectory(prefix="ippc-job-") as tmp:
+        paths = []
+        for i, (name, text) in enumerate(zip(job.files, job.texts, strict=True)):
+            folder = Path(tmp) / str(i)
+            folder.mkdir()
+            path = folder / Path(name).name
+            path.write_text(text, encoding="utf-8")
+            paths.append(str(path))
+        try:
+            return _registry_from(job, tuple(paths))
+        except ValueError as err:  # name the experiment's files, not the copies
+            text = str(err)
+            for copy, name in zip(paths, job.files, strict=True):
+                text = text.replace(copy, name)
+            raise ValueError(text) from None
+
+
+def _registry_from(job: Job, files: tuple[str, ...]) -> Any:
     from ..rddl import check_files, check_pair
     from ..server.registry import Instance, Registry, build_task
 
-    results = check_pair(*job.files) if job.paired else check_files(*job.files)
+    results = check_pair(*files) if job.paired else check_files(*files)
     for res in results:
         if res.kind == "instance" and res.name == job.instance:
             if res.model is None:
@@ -197,15 +281,105 @@ def _registry(job: Job) -> Any:
     raise ValueError(f"instance {job.instance} is no longer in {', '.join(job.files)}")
 
 
-def run_job(job: Job, report: Reporter | None = None) -> JobResult:
-    """Play the job's session (see the module doc); never raises for a failed session.
-    `report` hears of each round and turn of a session played against the job's own
-    server (one played against ``--server`` is not seen turn by turn)."""
+def play_job(
+    job: Job, report: Reporter | None = None, *, cancel: threading.Event | None = None
+) -> JobResult:
+    """Play the job in a child process that is stopped at the session's budget plus
+    the job's grace, or killed over its memory budget (see the module doc); never
+    raises for what the job does. `report` hears of its rounds and turns; `cancel` set
+    stops the child and gives status ``interrupted``."""
+    from ..client.guard import default_memory_budget, run_guarded
+
+    started = time.time()
+    memory = job.memory_mb
+    if memory is None:
+        memory = default_memory_budget(os.cpu_count() or 1)
+    limit = job.timeout + job.grace
+    # loading and checking the instance comes first and is not the session's time: the
+    # limit starts again when the server opens the session
+    session_at: list[float] = []
+
+    def heard(msg: Any) -> float | None:
+        if msg[0] == "session":
+            session_at.append(time.monotonic())
+            return limit
+        if msg[0] == "progress" and report is not None:
+            try:
+                report(job.key, msg[1], msg[2])
+            except Exception:  # noqa: BLE001 - progress is best effort
+                log.debug("progress of %s not reported", job.key, exc_info=True)
+        return None
+
+    log_path = _log_path(job, "session")
+    out = run_guarded(
+        "ippc.batch.jobs:_job_in_child",
+        job,
+        seconds=limit,
+        memory_mb=memory,
+        on_message=heard,
+        log_path=log_path,
+        cancel=cancel,
+    )
+    ended = time.time()
+    if out.status == "ok":
+        result: JobResult = out.value
+        return result
+    if out.status == "timeout":
+        if session_at:
+            why = (
+                f"the session was still running {time.monotonic() - session_at[0]:.0f} s after "
+                f"it began (its budget {job.timeout:g} s, plus {job.grace:g} s grace); the "
+                "planner's process was stopped and none of its rounds recorded"
+            )
+        else:
+            why = (
+                f"no session had begun {out.seconds:.0f} s after the job started (loading the "
+                f"instance: limit {limit:g} s); stopped"
+            )
+        return JobResult(job.key, "timeout", why, started, ended)
+    if out.status == "interrupted":
+        return JobResult(job.key, "interrupted", "stopped by Ctrl-C", started, ended)
+    reason = out.reason or "the planner's process failed"
+    if out.status == "memory":
+        reason += "; none of its rounds recorded"
+    if log_path is not None and out.status != "ok":
+        reason += f" (log: {log_path})"
+    return JobResult(job.key, "failed", reason, started, ended)
+
+
+def _job_in_child(job: Job, send: Callable[[Any], None]) -> JobResult:
+    """`run_job` in the guard's child: progress and the session's start go to `send`."""
+    queue = _SendQueue(send)
+    return run_job(job, ProgressQueue(queue), on_session=lambda: send(("session",)))
+
+
+class _SendQueue:
+    """A queue's ``put_nowait`` over the guard's `send`, for `ProgressQueue`."""
+
+    def __init__(self, send: Callable[[Any], None]) -> None:
+        self._send = send
+
+    def put_nowait(self, item: tuple[str, int, int | None]) -> None:
+        self._send(("progress", item[1], item[2]))
+
+
+def run_job(
+    job: Job,
+    report: Reporter | None = None,
+    *,
+    on_session: Callable[[], None] | None = None,
+) -> JobResult:
+    """Play the job's session in this process (see the module doc); never raises for a
+    failed session. `report` hears of each round and turn of a session played against
+    the job's own server (one played against ``--server`` is not seen turn by turn);
+    `on_session` of the session's start."""
     started = time.time()
     try:
         if job.server is not None:
+            if on_session is not None:
+                on_session()
             return _run_against(job, started)
-        return _run_own_server(job, started, report)
+        return _run_own_server(job, started, report, on_session)
     except (KeyboardInterrupt, SystemExit):
         raise
     except BaseException as err:
@@ -220,7 +394,12 @@ def run_job(job: Job, report: Reporter | None = None) -> JobResult:
         return JobResult(job.key, "failed", _leaf_text(err), started, time.time())
 
 
-def _run_own_server(job: Job, started: float, report: Reporter | None = None) -> JobResult:
+def _run_own_server(
+    job: Job,
+    started: float,
+    report: Reporter | None = None,
+    on_session: Callable[[], None] | None = None,
+) -> JobResult:
     from ..server.app import serve
     from ..server.config import ServerConfig
     from ..server.session import Services
@@ -236,8 +415,8 @@ def _run_own_server(job: Job, started: float, report: Reporter | None = None) ->
     )
     store = (
         ResultStore(":memory:", owner=f"batch:{job.key}")
-        if report is None
-        else _ReportingStore(job.key, report)
+        if report is None and on_session is None
+        else _ReportingStore(job.key, report or (lambda *_: None), on_session)
     )
     services = Services(config, registry, store=store)
     try:
@@ -316,13 +495,18 @@ def _leaf_text(err: BaseException) -> str:
     return f"{type(err).__name__}: {err}"
 
 
-def _log_path(job: Job) -> Path | None:
+def _log_path(job: Job, what: str = "") -> Path | None:
+    """The job's log file in its log folder: the planner's own output (an external
+    command, PROST), or with `what` the guarded process's log (``KEY.session.log``)."""
     if job.log_dir is None:
         return None
     folder = Path(job.log_dir)
-    folder.mkdir(parents=True, exist_ok=True)
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError:  # a worker elsewhere, where the batch's folder cannot be made
+        return None
     safe = "".join(c if c.isalnum() or c in "._-@" else "_" for c in job.key)
-    return folder / f"{safe}.log"
+    return folder / (f"{safe}.{what}.log" if what else f"{safe}.log")
 
 
 async def _play_command(job: Job, host: str, port: int, hard: float) -> str | None:

@@ -4,12 +4,14 @@
 done (finished, or timed out: their rounds count), hands the others to an executor and
 imports each result as it comes back. The executors:
 
-* serial (``jobs = 1``): in this process;
-* a local process pool (``concurrent.futures.ProcessPoolExecutor``, spawned workers);
+* local (``jobs = N``): N threads of this process, each handing one job at a time to a
+  child process of its own (`batch.jobs.play_job`: the child is stopped at the session's
+  budget plus the grace, or killed over its memory budget, and the batch goes on);
 * a Dask distributed cluster (``cluster="tcp://HOST:PORT"``, or a ``distributed.Client``
-  a caller made, such as a test's ``LocalCluster``): each task plays its session with its
-  own in-process server inside the worker, exactly as the local pool does, and returns
-  the recorded session, so the results are the same wherever a job ran.
+  a caller made, such as a test's ``LocalCluster``): each task runs `play_job` on its
+  worker, which plays the session in a child process there exactly as a local run does,
+  and returns the recorded session, so the results are the same wherever a job ran.
+  Jobs carry their RDDL texts: workers need ippc installed, not the experiment's files.
 
 One run at a time per database: `run_batch` holds an exclusive lock on ``DB.lock`` (an
 advisory ``flock``, released when the process ends, however it ends) while it plays, and a
@@ -18,13 +20,13 @@ job is played twice at once (a second run would also take the first's running jo
 left over, and play them again).
 
 An observer (`BatchObserver`, such as the web page's `batch.live.BatchLive`) hears
-of the run, of each job handed out, of each serial or local-pool job's rounds and turns
-(from the worker processes through a ``multiprocessing.Manager`` queue, read by a
-thread of this process), and of each result once it is in the database. What it does
+of the run, of each job handed out, of each local job's rounds and turns (from the job's child
+process, through the thread that watches it), and of each result once it is in the
+database. A `Progress` (`batch.progress`) hears of the same, for people. What it does
 never stops the batch: its errors are logged.
 
 Ctrl-C (KeyboardInterrupt) stops the batch: jobs not started are not started, jobs
-running are stopped (their workers are ended) and marked ``interrupted``, and every job
+running are stopped (their child processes are ended) and marked ``interrupted``, and every job
 that finished is already in the database. Running again resumes.
 """
 
@@ -33,21 +35,19 @@ from __future__ import annotations
 import contextlib
 import fcntl
 import logging
-import multiprocessing
 import os
-import signal
-import sys
 import threading
 import time
 from collections.abc import Callable, Iterable, Iterator
-from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
-from dataclasses import dataclass
+from concurrent.futures import FIRST_COMPLETED, Future, ThreadPoolExecutor, wait
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Protocol
 
+from ..client.guard import default_memory_budget
 from .experiment import Experiment, ExperimentError
 from .instances import ResolvedInstance, resolve_instances
-from .jobs import Job, JobResult, ProgressQueue, Reporter, build_jobs, run_job
+from .jobs import HARD_LIMIT_GRACE, Job, JobResult, Reporter, build_jobs, mean_reward, play_job
 from .progress import Progress
 from .results import DONE, BatchStore
 
@@ -75,6 +75,7 @@ class BatchSummary:
     interrupted: bool
     seconds: float
     failed_before: int = 0  # failed in an earlier run and not played again (no retry_failed)
+    failures: list[tuple[str, str]] = field(default_factory=list)  # (job key, why) of this run
 
 
 class BatchObserver(Protocol):
@@ -104,96 +105,36 @@ def _tell(observer: BatchObserver | None, what: str, *args: Any) -> None:
         log.exception("the batch's observer failed in %s", what)
 
 
-class _ProgressRelay:
-    """Worker processes' round-and-turn reports to an observer: a Manager queue the
-    workers put on and a thread of this process that reads it."""
-
-    def __init__(self, observer: BatchObserver) -> None:
-        self._observer = observer
-        self._manager = multiprocessing.get_context("spawn").Manager()
-        self._queue = self._manager.Queue(maxsize=10000)
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._read, name="batch-progress", daemon=True)
-        self._thread.start()
-
-    def reporter(self) -> Reporter:
-        return ProgressQueue(self._queue)
-
-    def _read(self) -> None:
-        import queue as queues
-
-        while not self._stop.is_set():
-            try:
-                key, round_num, turn = self._queue.get(timeout=0.2)
-            except queues.Empty:
-                continue
-            except (EOFError, OSError):  # the manager is gone
-                return
-            _tell(self._observer, "job_progress", key, round_num, turn)
-
-    def close(self) -> None:
-        self._stop.set()
-        self._thread.join(5)
-        self._manager.shutdown()
-
-
-def _worker_init() -> None:
-    # The parent owns Ctrl-C: a terminal's SIGINT reaches the whole process group, and
-    # a worker that died of it would only make noise. The parent ends workers itself.
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-
-
-def _serial(
-    jobs: list[Job], started: Callable[[Job], None], report: Reporter | None = None
-) -> Iterator[JobResult]:
-    for job in jobs:
-        started(job)
-        yield run_job(job, report)
-
-
-def _pool(
+def _local(
     jobs: list[Job], n: int, started: Callable[[Job], None], report: Reporter | None = None
 ) -> Iterator[JobResult]:
-    ctx = multiprocessing.get_context("spawn")
-    pool = ProcessPoolExecutor(max_workers=n, mp_context=ctx, initializer=_worker_init)
+    """Up to `n` jobs at once, each in a child process watched by a thread of ours."""
+    cancel = threading.Event()
+    pool = ThreadPoolExecutor(max_workers=n, thread_name_prefix="batch-job")
     pending = list(jobs)
     running: dict[Future[JobResult], Job] = {}
     try:
         while pending or running:
-            # hand out no more than the workers can play, so that "running" is true and a
-            # Ctrl-C leaves the rest unstarted
+            # hand out no more than can be played at once, so that "running" is true and
+            # a Ctrl-C leaves the rest unstarted
             while pending and len(running) < n:
                 job = pending.pop(0)
-                running[pool.submit(run_job, job, report)] = job
+                running[pool.submit(play_job, job, report, cancel=cancel)] = job
                 started(job)
             done, _ = wait(running, return_when=FIRST_COMPLETED)
             for fut in done:
                 job = running.pop(fut)
                 try:
                     yield fut.result()
-                except Exception as err:  # a worker that died (killed, out of memory)
+                except Exception as err:  # a bug of ours in the watching thread
+                    log.exception("job %s: its watcher failed", job.key)
                     now = time.time()
                     yield JobResult(
-                        job.key, "failed", f"the worker process failed: {err!r}", now, now
+                        job.key, "failed", f"the job's watcher failed: {err!r}", now, now
                     )
     finally:
-        if pending or running:
-            _stop_pool(pool)
-        else:
-            pool.shutdown(wait=True)
-
-
-def _stop_pool(pool: ProcessPoolExecutor) -> None:
-    processes = list(getattr(pool, "_processes", {}).values())
-    pool.shutdown(wait=False, cancel_futures=True)
-    for proc in processes:
-        if proc.is_alive():
-            proc.terminate()
-    for proc in processes:
-        proc.join(10)
-        if proc.is_alive():
-            proc.kill()
-            proc.join(5)
+        cancel.set()  # the watchers end their children at once
+        pool.shutdown(wait=True, cancel_futures=True)
 
 
 def _dask(jobs: list[Job], cluster: Any, started: Callable[[Job], None]) -> Iterator[JobResult]:
@@ -213,7 +154,10 @@ def _dask(jobs: list[Job], cluster: Any, started: Callable[[Job], None]) -> Iter
         by_key = {}
         for job in jobs:
             fut = client.submit(
-                run_job, job, pure=False, key=f"ippc-batch-{job.key}-{os.getpid()}-{time.time_ns()}"
+                play_job,
+                job,
+                pure=False,
+                key=f"ippc-batch-{job.key}-{os.getpid()}-{time.time_ns()}",
             )
             by_key[fut.key] = job
             futures.append(fut)
@@ -273,6 +217,8 @@ def run_batch(
     progress: Progress | None = None,
     instances: list[ResolvedInstance] | None = None,
     observer: BatchObserver | None = None,
+    memory_mb: float | None = None,
+    grace: float = HARD_LIMIT_GRACE,
 ) -> BatchSummary:
     """Play every job of `experiment` not yet done, storing results in `db`.
 
@@ -281,7 +227,11 @@ def run_batch(
     plays against an existing server instead of one per job. Raises `ExperimentError`
     for instances that do not resolve, before anything runs (``instances``: already
     resolved by `check_experiment`). ``observer`` hears of the run as it goes (see the
-    module doc)."""
+    module doc); ``progress`` tells people (default: nothing is printed).
+
+    Each job's child process is stopped ``grace`` seconds past its session's budget, or
+    killed over ``memory_mb`` MB (default: 80% of the memory available now, shared by
+    the jobs played at once; on a cluster, by each worker machine's cores)."""
     t0 = time.monotonic()
     if instances is None:
         instances = resolve_instances(experiment)
@@ -293,10 +243,17 @@ def run_batch(
                     f"--server: planners given as commands ({', '.join(commands)}) need the batch's own server"
                 ]
             )
-    all_jobs = build_jobs(
-        experiment, instances, log_dir=None if log_dir is None else str(log_dir), server=server
-    )
     n = jobs or experiment.jobs
+    if memory_mb is None and cluster is None:
+        memory_mb = default_memory_budget(n)
+    all_jobs = build_jobs(
+        experiment,
+        instances,
+        log_dir=None if log_dir is None else str(log_dir),
+        server=server,
+        memory_mb=memory_mb,
+        grace=grace,
+    )
     with _run_lock(db), BatchStore(db) as store:
         conflicts = store.register(all_jobs)
         if conflicts:
@@ -314,40 +271,57 @@ def run_batch(
         todo = [j for j in all_jobs if status.get(j.key) not in again]
         skipped = sum(1 for j in all_jobs if status.get(j.key) in DONE)
         failed_before = len(all_jobs) - len(todo) - skipped
-        prog = progress or Progress(total=len(all_jobs), done=skipped, stream=sys.stderr)
+        prog = progress or Progress(stream=None)
         prog.start(total=len(all_jobs), done=skipped + failed_before, failed=failed_before)
         finished = failed = 0
+        failures: list[tuple[str, str]] = []
         interrupted = False
         _tell(observer, "batch_started", experiment.name, all_jobs, store)
+        by_key = {job.key: job for job in todo}
 
         def started(job: Job) -> None:
             store.mark(experiment.name, [job.key], "running")
-            prog.started()
+            log.info("%s: started", job.key)
+            prog.started(job.key)
             _tell(observer, "job_started", job)
 
-        relay: _ProgressRelay | None = None
         report: Reporter | None = None
         if observer is not None and cluster is None and todo:
-            if n <= 1:
-                report = observer.job_progress
-            else:
-                relay = _ProgressRelay(observer)
-                report = relay.reporter()
+            report = observer.job_progress
         if cluster is not None:
             results = _dask(todo, cluster, started)
-        elif n <= 1:
-            results = _serial(todo, started, report)
         else:
-            results = _pool(todo, n, started, report)
+            results = _local(todo, n, started, report)
         try:
             for result in results:
+                if result.status == "interrupted":
+                    raise KeyboardInterrupt  # a watcher saw the cancel: only on Ctrl-C
                 store.import_result(experiment.name, result)
+                mean = mean_reward(result)
                 if result.status in DONE:
                     finished += 1
+                    log.info(
+                        "%s: %s, %d rounds, mean reward %s%s",
+                        result.key,
+                        result.status,
+                        len(result.rounds),
+                        "-" if mean is None else f"{mean:.4f}",
+                        f" ({result.reason})" if result.reason else "",
+                    )
                 else:
                     failed += 1
-                    log.warning("%s failed: %s", result.key, result.reason)
-                prog.ended(failed=result.status not in DONE)
+                    failures.append((result.key, result.reason or result.status))
+                    log.info("%s failed: %s", result.key, result.reason)
+                job = by_key.get(result.key)
+                prog.ended(
+                    result.key,
+                    result.status,
+                    planner=job.planner.label if job else result.key.split("@")[0],
+                    instance=job.instance if job else result.key.partition("@")[2],
+                    mean=mean,
+                    seconds=result.ended_at - result.started_at,
+                    reason=result.reason,
+                )
                 _tell(observer, "job_ended", result)
         except KeyboardInterrupt:
             interrupted = True
@@ -359,8 +333,6 @@ def run_batch(
             _tell(observer, "jobs_interrupted", running, "stopped by Ctrl-C")
         finally:
             prog.close()
-            if relay is not None:
-                relay.close()
             _tell(observer, "batch_ended", interrupted)
     return BatchSummary(
         len(all_jobs),
@@ -370,4 +342,5 @@ def run_batch(
         interrupted,
         time.monotonic() - t0,
         failed_before,
+        failures,
     )
