@@ -90,7 +90,9 @@ def test_an_illegal_multibinary_action_is_replaced_and_reported() -> None:
     assert env.step(one)[4] == {"illegal_action": False}
     with pytest.raises(ValueError, match="other than 0 and 1"):
         env.step(np.full(10, 0.5))
-    strict = FlatRDDLEnv("SysAdmin_MDP_ippc2011", "1", actions="multibinary", illegal_actions="raise")
+    strict = FlatRDDLEnv(
+        "SysAdmin_MDP_ippc2011", "1", actions="multibinary", illegal_actions="raise"
+    )
     strict.reset(seed=0)
     with pytest.raises(Exception, match="max-nondef-actions"):
         strict.step(two)
