@@ -28,7 +28,7 @@ from .ctree import TREE_C, attach
 from .deadline import Deadline
 from .heuristic import IDS, RewardLocks, training_states
 from .options import OPTIONS, Settings, read_settings
-from .relevance import useless_actions
+from .relevance import removable_inert, useless_actions
 from .rollouts import Expander, _stack_states
 from .stats import SearchStats
 from .thts import THTS
@@ -184,7 +184,7 @@ class MCTSPlanner(Planner):
         """The action groundings the thts search leaves at their default: those
         the step never reads, and with `prune_useless` those that can never pay
         (`relevance.useless_actions`)."""
-        skipped = list(scalar.inert_actions)
+        skipped = removable_inert(scalar)  # (those the constraints allow at their default)
         if self.settings.prune_useless:
             useless = useless_actions(scalar)
             if useless:

@@ -14,10 +14,22 @@ relevant ones read (unfolded) join the useful ones, and so on until nothing
 changes.
 
 Whatever a useless grounding does, it touches only state that cannot reach
-the reward, and it can only lower the reward: a joint action that sets one
-is worth at most the same joint action without it. (Only where noop is legal in every state,
-that is where every constraint folds to true with all actions at their
-default: elsewhere nothing is left out.)
+the reward or a constraint, and it can only lower the reward: a joint action
+that sets one is worth at most the same joint action without it, *provided
+that one is legal too*. The constraint rule sees to that: each conjunct of
+the preconditions and state-action constraints (`_Polarity`) must be proven
+to stay true when a useless bool grounding it reads goes back to its default
+(a grounding whose default is false may only appear where setting it can
+make the conjunct false, never where it can make it true: `sum(take) <= 3`
+and `take => ~passed` allow it, `move => permit` does not allow `permit`,
+`x == y` allows neither). A conjunct not proven so, or one that reads a
+useless grounding that is not bool, makes every grounding it reads useful,
+and the fixpoint goes on from there (`ship => label`, `label => weigh`:
+label and then weigh). The same rule decides which of the groundings the
+step never reads may be left out (`removable_inert`). Where noop may be
+illegal somewhere (a constraint that does not fold to true with every action
+at its default), nothing is left out as useless either.
+
 In AcademicAdvising the useful courses are the program requirements and
 their prerequisites, transitively (6 of 27 on IPPC 2018's instance 4); the
 others only cost. The search leaves the useless groundings at their default,
@@ -40,6 +52,7 @@ import time
 from collections.abc import Callable, Iterable
 from typing import Any
 
+from ...rddl import ast as A
 from ...rddl.sim.scalar import _HELPERS, ScalarStep
 
 _STATE = re.compile(r"s(\d+)$")
@@ -345,6 +358,191 @@ def _terms(node: ast.expr, sign: int = 1) -> Iterable[tuple[int, ast.expr]]:
         yield sign, node
 
 
+# -- the constraint rule ------------------------------------------------------
+
+POS, NEG = 1, 2
+BOTH = POS | NEG
+
+
+def _flip(bits: int) -> int:
+    return ((bits & POS) << 1) | ((bits & NEG) >> 1)
+
+
+def _join(*parts: dict[str, int]) -> dict[str, int]:
+    out: dict[str, int] = {}
+    for p in parts:
+        for k, v in p.items():
+            out[k] = out.get(k, 0) | v
+    return out
+
+
+class _Polarity:
+    """How an expression of the legal function moves with each action
+    grounding it reads: `of(node)` maps aN to POS (never falls as aN rises),
+    NEG (never rises), or BOTH (not proven either way). Value order, with
+    False < True; bool operators count as min/max only over boolean operands,
+    products and quotients only where the other side's sign is known."""
+
+    def __init__(
+        self, defs: dict[str, ast.expr], ns: dict[str, Any], boolean: set[str], free: _Folder
+    ):
+        self.defs = defs
+        self.ns = ns
+        self.boolean = boolean
+        self.free = free
+        self.bounds = _Intervals(defs, {}, ns, boolean)
+        self.memo: dict[str, dict[str, int]] = {}
+        self.bool_memo: dict[str, bool] = {}
+
+    def unknown(self, node: ast.expr) -> dict[str, int]:
+        """BOTH for every action grounding `node` reads."""
+        return {x: BOTH for x in _names(self.free.deps(node)) if _ACTION.match(x)}
+
+    def is_bool(self, node: ast.expr) -> bool:
+        if isinstance(node, ast.Compare):
+            return True
+        if isinstance(node, ast.Constant):
+            return isinstance(node.value, bool)
+        if isinstance(node, ast.UnaryOp):
+            return isinstance(node.op, ast.Not)
+        if isinstance(node, ast.BoolOp):
+            return all(self.is_bool(v) for v in node.values)
+        if isinstance(node, ast.IfExp):
+            return self.is_bool(node.body) and self.is_bool(node.orelse)
+        if isinstance(node, ast.Call):
+            return isinstance(node.func, ast.Name) and node.func.id == "bool"
+        if isinstance(node, ast.Name):
+            if node.id in self.boolean:
+                return True
+            if node.id in self.defs:
+                got = self.bool_memo.get(node.id)
+                if got is None:
+                    self.bool_memo[node.id] = False  # (no cycles in straight-line code)
+                    got = self.bool_memo[node.id] = self.is_bool(self.defs[node.id])
+                return got
+        return False
+
+    def truth(self, node: ast.expr) -> dict[str, int] | None:
+        """The polarity of `node`'s truth value, where it follows its value
+        (boolean, or never negative); None where it may not."""
+        if self.is_bool(node) or self.bounds.of(node)[0] >= 0:
+            return self.of(node)
+        return None
+
+    def of(self, node: ast.expr) -> dict[str, int]:
+        if isinstance(node, ast.Constant):
+            return {}
+        if isinstance(node, ast.Name):
+            ident = node.id
+            if _ACTION.match(ident) and ident not in self.defs:
+                return {ident: POS}
+            if ident in self.defs:
+                got = self.memo.get(ident)
+                if got is None:
+                    self.memo[ident] = {}
+                    got = self.memo[ident] = self.of(self.defs[ident])
+                return got
+            return {}
+        if isinstance(node, ast.IfExp):
+            test = self.free.deps(node.test)
+            if isinstance(test, _Const):
+                return self.of(node.body if test.value else node.orelse)
+            return _join(self.of(node.body), self.of(node.orelse), self.unknown(node.test))
+        if isinstance(node, ast.BoolOp):
+            if all(self.is_bool(v) for v in node.values):
+                return _join(*(self.of(v) for v in node.values))
+            return self.unknown(node)
+        if isinstance(node, ast.UnaryOp):
+            if isinstance(node.op, ast.Not):
+                got = self.truth(node.operand)
+                return self.unknown(node) if got is None else _flipped(got)
+            if isinstance(node.op, ast.USub):
+                return _flipped(self.of(node.operand))
+            if isinstance(node.op, ast.UAdd):
+                return self.of(node.operand)
+            return self.unknown(node)
+        if isinstance(node, ast.BinOp):
+            return self._binop(node)
+        if isinstance(node, ast.Compare):
+            out: dict[str, int] = {}
+            operands = [node.left, *node.comparators]
+            for op, left, right in zip(node.ops, operands, operands[1:], strict=False):
+                if isinstance(op, ast.Lt | ast.LtE):
+                    out = _join(out, _flipped(self.of(left)), self.of(right))
+                elif isinstance(op, ast.Gt | ast.GtE):
+                    out = _join(out, self.of(left), _flipped(self.of(right)))
+                else:
+                    out = _join(out, self.unknown(left), self.unknown(right))
+            return out
+        if isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and not node.keywords:
+            fn = node.func.id
+            if fn == "bool" and len(node.args) == 1:
+                got = self.truth(node.args[0])
+                return self.unknown(node) if got is None else got
+            if fn in ("int", "float", "_floor", "_ceil") and len(node.args) == 1:
+                return self.of(node.args[0])
+            if fn in ("min", "max"):
+                return _join(*(self.of(a) for a in node.args))
+        return self.unknown(node)
+
+    def _binop(self, node: ast.BinOp) -> dict[str, int]:
+        left, right = node.left, node.right
+        if isinstance(node.op, ast.Add):
+            return _join(self.of(left), self.of(right))
+        if isinstance(node.op, ast.Sub):
+            return _join(self.of(left), _flipped(self.of(right)))
+        if isinstance(node.op, ast.Mult):
+            pl, pr = self.of(left), self.of(right)
+            bl, br = self.bounds.of(left), self.bounds.of(right)
+            out: dict[str, int] = {}
+            for side, other in ((pl, br), (pr, bl)):
+                for k, v in side.items():
+                    if other[0] >= 0:
+                        bits = v
+                    elif other[1] <= 0:
+                        bits = _flip(v)
+                    else:
+                        bits = BOTH
+                    out[k] = out.get(k, 0) | bits
+            same_sign = (bl[0] >= 0 and br[0] >= 0) or (bl[1] <= 0 and br[1] <= 0)
+            if not same_sign:
+                for k in pl.keys() & pr.keys():
+                    out[k] = BOTH
+            return out
+        if isinstance(node.op, ast.Div | ast.FloorDiv):
+            if not self.unknown(right):
+                lo, hi = self.bounds.of(right)
+                if lo > 0:
+                    return self.of(left)
+                if hi < 0:
+                    return _flipped(self.of(left))
+        return self.unknown(node)
+
+
+def _flipped(p: dict[str, int]) -> dict[str, int]:
+    return {k: _flip(v) for k, v in p.items()}
+
+
+def _conjuncts(node: ast.expr, defs: dict[str, ast.expr]) -> Iterable[ast.expr]:
+    """The parts of a conjunction (through `bool(...)` and locals)."""
+    if isinstance(node, ast.BoolOp) and isinstance(node.op, ast.And):
+        for v in node.values:
+            yield from _conjuncts(v, defs)
+    elif (
+        isinstance(node, ast.Call)
+        and isinstance(node.func, ast.Name)
+        and node.func.id == "bool"
+        and len(node.args) == 1
+        and not node.keywords
+        and isinstance(node.args[0], ast.BoolOp)
+    ):
+        yield from _conjuncts(node.args[0], defs)
+    elif isinstance(node, ast.Name) and isinstance(defs.get(node.id), ast.BoolOp):
+        yield from _conjuncts(defs[node.id], defs)
+    else:
+        yield node
+
+
 def useless_actions(
     fast: ScalarStep, time_limit: float = 2.0, clock: Callable[[], float] = time.monotonic
 ) -> list[tuple[str, tuple[int, ...]]]:
@@ -370,28 +568,11 @@ def useless_actions(
     if not isinstance(nxt, ast.Tuple) or len(nxt.elts) != len(fast.state_keys):
         return []
     next_of = list(nxt.elts)
-    constraints: list[ast.expr] = []
-    cdefs: dict[str, ast.expr] = {}  # the constraints' own locals (their names may be the step's)
-    if fast.legal_source is not None:
-        lfn = ast.parse(fast.legal_source).body[0]
-        assert isinstance(lfn, ast.FunctionDef)
-        for stmt in lfn.body:
-            if isinstance(stmt, ast.Assign) and len(stmt.targets) == 1:
-                target = stmt.targets[0]
-                if isinstance(target, ast.Name):
-                    cdefs[target.id] = stmt.value
-            elif isinstance(stmt, ast.Return) and stmt.value is not None:
-                constraints.append(stmt.value)
-    elif fast.constrained:
+    legal = _read_constraints(fast)
+    if legal is None:
         return []  # constraints the analysis cannot read: nothing is pruned
-    ns: dict[str, Any] = dict(_HELPERS)
-    ns.update(fast.tables)
-    ns["bool"] = bool
-    ns["abs"] = abs
-    ns["min"] = min
-    ns["max"] = max
-    ns["int"] = int
-    ns["float"] = float
+    constraints, cdefs = legal
+    ns = _namespace(fast)
     n_actions = len(fast.action_keys)
     noop = _Folder(cdefs, {f"a{j}": fast.noop[j] for j in range(n_actions)}, ns)
     for expr in constraints:
@@ -400,12 +581,13 @@ def useless_actions(
             # noop may be illegal somewhere: a joint action without its useless
             # groundings might be too, so nothing is left out
             return []
-    inert = set(fast.inert_actions)
+    # the inert groundings the constraints allow at their default are left
+    # out already; the others are judged as the rest
+    inert = set(removable_inert(fast))
     candidates = {f"a{j}" for j in range(n_actions) if fast.action_keys[j] not in inert}
     defaults = {f"a{j}": fast.noop[j] for j in range(n_actions)}
-    boolean = {
-        f"s{i}" for i, (name, _) in enumerate(fast.state_keys) if _range(fast, name) == "bool"
-    } | {f"a{j}" for j, (name, _) in enumerate(fast.action_keys) if _range(fast, name) == "bool"}
+    boolean = _boolean(fast)
+    parts = _constraint_parts(constraints, cdefs, ns, boolean)
     done = defs.get("done", ast.Constant(False))
     # unfolded (no action fixed): what each next value, the termination and
     # each reward term read, and the bounds of those terms that read an action
@@ -445,6 +627,9 @@ def useless_actions(
                 int(x[1:]) for x in nxt_reads if _STATE.match(x) and int(x[1:]) not in relevant
             )
         grown = done_reads & useless
+        # a constraint not proven to allow a useless grounding at its default
+        # keeps every grounding it reads (see the module docstring)
+        grown |= _kept_by(parts, useless, defaults, boolean) - useful
         for i in relevant:
             grown |= reads[i] & useless
         low = _Intervals(defs, fixed, ns, boolean)
@@ -472,3 +657,117 @@ def _names(d: _Const | frozenset[str]) -> frozenset[str]:
 def _range(fast: ScalarStep, name: str) -> str:
     p = fast.sim.model.pvariables.get(name)
     return "" if p is None else str(p.range)
+
+
+def _read_constraints(fast: ScalarStep) -> tuple[list[ast.expr], dict[str, ast.expr]] | None:
+    """The legal function's returned expressions and its locals ([] where
+    there is no constraint); None where there are constraints the analysis
+    cannot read (`ScalarStep.legal_error`)."""
+    constraints: list[ast.expr] = []
+    cdefs: dict[str, ast.expr] = {}  # the constraints' own locals (their names may be the step's)
+    if fast.legal_source is None:
+        return None if fast.constrained else (constraints, cdefs)
+    lfn = ast.parse(fast.legal_source).body[0]
+    assert isinstance(lfn, ast.FunctionDef)
+    for stmt in lfn.body:
+        if isinstance(stmt, ast.Assign) and len(stmt.targets) == 1:
+            target = stmt.targets[0]
+            if isinstance(target, ast.Name):
+                cdefs[target.id] = stmt.value
+        elif isinstance(stmt, ast.Return) and stmt.value is not None:
+            constraints.append(stmt.value)
+    return constraints, cdefs
+
+
+def _namespace(fast: ScalarStep) -> dict[str, Any]:
+    ns: dict[str, Any] = dict(_HELPERS)
+    ns.update(fast.tables)
+    ns["bool"] = bool
+    ns["abs"] = abs
+    ns["min"] = min
+    ns["max"] = max
+    ns["int"] = int
+    ns["float"] = float
+    return ns
+
+
+def _boolean(fast: ScalarStep) -> set[str]:
+    """The step's names (sN, aN) of bool groundings."""
+    return {
+        f"s{i}" for i, (name, _) in enumerate(fast.state_keys) if _range(fast, name) == "bool"
+    } | {f"a{j}" for j, (name, _) in enumerate(fast.action_keys) if _range(fast, name) == "bool"}
+
+
+def _constraint_parts(
+    constraints: list[ast.expr], cdefs: dict[str, ast.expr], ns: dict[str, Any], boolean: set[str]
+) -> list[tuple[frozenset[str], dict[str, int]]]:
+    """Each conjunct of the constraints: the action groundings it reads, and
+    how its truth moves with each of them (`_Polarity`)."""
+    free = _Folder(cdefs, {}, ns)
+    polarity = _Polarity(cdefs, ns, boolean, free)
+    out = []
+    for expr in constraints:
+        for part in _conjuncts(expr, cdefs):
+            read = frozenset(x for x in _names(free.deps(part)) if _ACTION.match(x))
+            if not read:
+                continue
+            got = polarity.truth(part)
+            out.append((read, polarity.unknown(part) if got is None else got))
+    return out
+
+
+def _kept_by(
+    parts: list[tuple[frozenset[str], dict[str, int]]],
+    removable: set[str],
+    defaults: dict[str, Any],
+    boolean: set[str],
+) -> set[str]:
+    """Every action grounding read by a conjunct that reads one of
+    `removable` and is not proven to stay true when it is reset to its
+    default: a bool grounding whose default is false may only lower the
+    conjunct's truth as it rises (NEG), one whose default is true only raise
+    it (POS); any other grounding is never proven."""
+    kept: set[str] = set()
+    for read, moves in parts:
+        for u in read & removable:
+            if u not in boolean:
+                break
+            wrong = POS if not defaults[u] else NEG
+            if moves.get(u, BOTH) & wrong:
+                break
+        else:
+            continue
+        kept |= read
+    return kept
+
+
+def removable_inert(fast: ScalarStep) -> list[tuple[str, tuple[int, ...]]]:
+    """The groundings of `ScalarStep.inert_actions` (the step never reads
+    them) that the constraints allow at their default wherever they allow
+    them set: left out, a legal joint action stays legal. An inert grounding
+    that a constraint reads otherwise (`move => permit`, with a `permit`
+    that costs nothing) is kept, with every grounding that constraint reads."""
+    inert = list(fast.inert_actions)
+    if not inert:
+        return []
+    legal = _read_constraints(fast)
+    if legal is None:
+        # constraints the analysis cannot read: only groundings of fluents
+        # that no constraint names
+        dom = fast.sim.model.domain
+        named: set[str] = set()
+        todo: list[A.Expr] = [*dom.action_preconditions, *dom.state_action_constraints]
+        while todo:
+            e = todo.pop()
+            if isinstance(e, A.PVar):
+                named.add(e.name)
+            todo.extend(A.children(e))
+        return [key for key in inert if key[0] not in named]
+    constraints, cdefs = legal
+    index = {key: j for j, key in enumerate(fast.action_keys)}
+    removable = {f"a{index[key]}" for key in inert}
+    defaults = {f"a{j}": fast.noop[j] for j in range(len(fast.action_keys))}
+    boolean = _boolean(fast)
+    parts = _constraint_parts(constraints, cdefs, _namespace(fast), boolean)
+    kept = _kept_by(parts, removable, defaults, boolean)
+    return [key for key in inert if f"a{index[key]}" not in kept]
