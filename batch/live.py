@@ -47,6 +47,23 @@ EventCallback = Callable[[dict[str, Any]], None]
 
 #: Job statuses, in the order the page's legend lists them.
 STATUSES = ("pending", "running", "finished", "timeout", "failed", "interrupted")
+#: The statuses whose jobs the scores so far count (as `BatchStore.round_records` reads
+#: them); a job that failed counts as 0 where it played no round, as in FinalEval.
+SCORED = ("finished", "timeout", "failed")
+#: What the page keeps of a session (the database has everything).
+SESSION_FACTS = (
+    "server_session_id",
+    "client_name",
+    "seed",
+    "num_rounds",
+    "time_allowed_ms",
+    "started_at",
+    "ended_at",
+    "status",
+    "reason",
+    "total_reward",
+    "rounds_used",
+)
 
 
 @dataclass
@@ -102,6 +119,9 @@ class BatchLive:
         self._turns: dict[str, _Turns] = {}  # job key -> its turn times
         self._scores: dict[str, Any] = {"error": "no rounds to score"}
         self._figures: dict[str, Any] = _empty_figures()
+        # job key -> its session as the database has it (facts and rounds), once done
+        self._sessions: dict[str, dict[str, Any]] = {}
+        self.kept: str | None = None  # why the page stays up after the run (see BatchWeb)
 
     # ----------------------------------------------------------- listening
 
@@ -124,6 +144,7 @@ class BatchLive:
         rows = {r.job_key: r for r in store.jobs(experiment)}
         records = store.round_records(experiment)
         turn_rows = store.turn_times(experiment)
+        sessions = _stored_sessions(store, experiment)
         with self._lock:
             self._store = store
             self.experiment = experiment
@@ -150,6 +171,7 @@ class BatchLive:
                     "ended_at": None,
                 }
             _round_stats(self._jobs, records)
+            self._sessions = {k: v for k, v in sessions.items() if k in self._jobs}
             self._turns = {}
             keys = {(j.planner.label, j.instance): j.key for j in jobs}
             for planner, instance, domain, seconds in turn_rows:
@@ -221,6 +243,7 @@ class BatchLive:
                 self._turns[result.key] = turns
             else:
                 self._turns.pop(result.key, None)
+            self._sessions[result.key] = _result_session(result)
             _round_stats({result.key: entry}, records)
             events = [self._event("job", job=dict(entry), counts=self._counts())]
         self._emit(events)
@@ -247,6 +270,13 @@ class BatchLive:
             events = [self._event("batch", state=self.state, ended_at=self.ended_at)]
         self._emit(events)
 
+    def page_kept(self, text: str) -> None:
+        """The run is over and its page stays up (`text` says until when)."""
+        with self._lock:
+            self.kept = text
+            events = [self._event("batch", state=self.state, kept=text)]
+        self._emit(events)
+
     # ----------------------------------------------------------- reading
 
     def snapshot(self) -> dict[str, Any]:
@@ -257,6 +287,7 @@ class BatchLive:
                 "seq": self._seq,
                 "experiment": self.experiment,
                 "state": self.state,
+                "kept": self.kept,
                 "rules": self.rules,
                 "started_at": self.started_at,
                 "ended_at": self.ended_at,
@@ -279,6 +310,28 @@ class BatchLive:
             entry = self._jobs.get(key)
             return None if entry is None else dict(entry)
 
+    def jobs(self) -> list[dict[str, Any]]:
+        """Every job's entry, in the experiment's order."""
+        with self._lock:
+            return [dict(e) for e in self._jobs.values()]
+
+    def scores(self) -> dict[str, Any]:
+        """The scores so far (as the snapshot has them)."""
+        with self._lock:
+            return self._scores
+
+    def session(self, key: str) -> dict[str, Any] | None:
+        """The session of a job that is done, as the database has it: ``{"session":
+        {...}, "rounds": [{"round", "counted", "reward", "turns", "status", "seconds"}]}``
+        (None: not done, or no session: a job that failed before it played)."""
+        with self._lock:
+            got = self._sessions.get(key)
+            return (
+                None
+                if got is None
+                else {"session": dict(got["session"]), "rounds": list(got["rounds"])}
+            )
+
     def _counts(self) -> dict[str, int]:
         counts = dict.fromkeys(STATUSES, 0)
         for e in self._jobs.values():
@@ -289,7 +342,13 @@ class BatchLive:
     def _rescore(self, records: list[RoundRecord], why: str) -> None:
         """Scores and figures from `records` (the database's rounds of the experiment)."""
         with self._lock:
-            expected = [(e["planner"], e["instance"], e["domain"]) for e in self._jobs.values()]
+            # only the jobs that are over: a running or pending job is not a 0 (the
+            # page shows it as running or pending beside the scores)
+            expected = [
+                (e["planner"], e["instance"], e["domain"])
+                for e in self._jobs.values()
+                if e["status"] in SCORED
+            ]
             turns = dict(self._turns)
         try:
             table = score(records, self.rules, expected_rounds=self.rounds, expected=expected)
@@ -347,3 +406,46 @@ def _round_stats(jobs: dict[str, dict[str, Any]], records: list[RoundRecord]) ->
         if rewards:
             entry["rounds"] = len(rewards)
             entry["mean"] = sum(rewards) / len(rewards)
+
+
+def _round_row(rnd: Any) -> dict[str, Any]:
+    started, ended = rnd.get("started_at"), rnd.get("ended_at")
+    return {
+        "round": rnd.get("round_num"),
+        "counted": bool(rnd.get("counted", True)),
+        "reward": rnd.get("reward"),
+        "turns": rnd.get("turns_used"),
+        "status": rnd.get("status"),
+        "seconds": None if started is None or ended is None else float(ended) - float(started),
+    }
+
+
+def _result_session(result: JobResult) -> dict[str, Any]:
+    """What the page keeps of a job's session, from its result."""
+    facts = {k: (result.session or {}).get(k) for k in SESSION_FACTS}
+    return {"session": facts, "rounds": [_round_row(r) for r in result.rounds]}
+
+
+def _stored_sessions(store: BatchStore, experiment: str) -> dict[str, dict[str, Any]]:
+    """The sessions of the experiment's jobs already in the database (a resumed run)."""
+    cols = ", ".join(f"s.{c}" for c in SESSION_FACTS)
+    rows = store.raw(
+        f"SELECT j.job_key, s.id AS sid, {cols} FROM jobs j JOIN sessions s ON s.id = j.session_id"
+        " WHERE j.experiment = ? ORDER BY j.id",
+        (experiment,),
+    )
+    out: dict[str, dict[str, Any]] = {}
+    by_sid: dict[int, dict[str, Any]] = {}
+    for r in rows:
+        entry = {"session": {c: r[c] for c in SESSION_FACTS}, "rounds": []}
+        out[r["job_key"]] = entry
+        by_sid[int(r["sid"])] = entry
+    if by_sid:
+        marks = ", ".join("?" * len(by_sid))
+        for r in store.raw(
+            "SELECT session_id, round_num, counted, started_at, ended_at, status, reward,"
+            f" turns_used FROM rounds WHERE session_id IN ({marks}) ORDER BY id",
+            tuple(by_sid),
+        ):
+            by_sid[int(r["session_id"])]["rounds"].append(_round_row(dict(r)))
+    return out

@@ -25,9 +25,9 @@ Routes: ``/`` (the page), ``/events`` (its server-sent events), ``/snapshot.json
 from __future__ import annotations
 
 import logging
-import math
+import signal
 import threading
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 from urllib.parse import quote
 
@@ -42,7 +42,7 @@ from ..web import (
     Response,
     Routes,
     WebOptions,
-    esc,
+    cell,
     field,
     fields_event,
     fmt_number,
@@ -54,12 +54,13 @@ from ..web import (
     rows_event,
     serve_web,
     to_json,
+    web_url,
 )
-from ..web.chart import PALETTE
+from ..web.chart import bar_chart
 from ..web.pages import PageUpdates
-from .live import BatchLive
+from .live import STATUSES, BatchLive
 
-__all__ = ["BatchWeb", "batch_routes", "bar_chart", "page_events"]
+__all__ = ["BatchWeb", "batch_routes", "bar_chart", "job_events", "page_events"]
 
 log = logging.getLogger(__name__)
 
@@ -104,6 +105,16 @@ def _grid_cell(job: Mapping[str, Any]) -> str:
     return str(status)
 
 
+def job_path(key: str) -> str:
+    """The path of a job's page (its session)."""
+    return "/job/" + quote(key, safe="")
+
+
+def _grid_value(job: Mapping[str, Any]) -> dict[str, Any]:
+    """A grid cell: the job's text, coloured by its status, a link to its page."""
+    return cell(_grid_cell(job), state=job["status"], href=job_path(job["key"]))
+
+
 def _job_cells(job: Mapping[str, Any]) -> dict[str, Any]:
     return {
         "key": job["key"],
@@ -129,16 +140,55 @@ def _counts_text(counts: Mapping[str, int]) -> str:
     return f"{counts.get('total', 0)} jobs: " + (", ".join(parts) or "none yet")
 
 
+def _unscored(jobs: Sequence[Mapping[str, Any]]) -> dict[tuple[str, str | None], dict[str, int]]:
+    """Per (planner, None) and (planner, domain): its jobs not scored yet, by status."""
+    out: dict[tuple[str, str | None], dict[str, int]] = {}
+    for job in jobs:
+        if job["status"] in ("running", "pending", "interrupted"):
+            for key in ((job["planner"], None), (job["planner"], job.get("domain"))):
+                counts = out.setdefault(key, {})
+                counts[job["status"]] = counts.get(job["status"], 0) + 1
+    return out
+
+
+def _unscored_text(counts: Mapping[str, int] | None) -> str:
+    if not counts:
+        return ""
+    order = ("running", "pending", "interrupted")
+    return ", ".join(f"{counts[k]} {k}" for k in order if counts.get(k))
+
+
 def _score_rows(
-    scores: Mapping[str, Any], planners: Sequence[str]
+    scores: Mapping[str, Any], planners: Sequence[str], jobs: Sequence[Mapping[str, Any]] = ()
 ) -> list[tuple[str, str, dict[str, Any]]]:
-    """The rows of the overall table (one per planner, with its rank) and of the
-    per-domain table (one per domain, a planner's score and its 95% interval per
-    column, as the report's table)."""
+    """The rows of the overall table (one per planner, with its rank, and its jobs not
+    scored yet: running, pending) and of the per-domain table (one per domain, a
+    planner's score and its 95% interval per column, as the report's table; a planner
+    with jobs not scored yet there says so: `running` rather than a 0)."""
+    unscored = _unscored(jobs)
     rows: list[tuple[str, str, dict[str, Any]]] = []
-    for rank, p in enumerate(scores.get("planners", []), 1):
+    ranked = list(scores.get("planners", []))
+    for rank, p in enumerate(ranked, 1):
         cells = {k: p[k] for k in ("planner", "score", "ci95", "instances")}
+        cells["unscored"] = _unscored_text(unscored.get((p["planner"], None)))
         rows.append(("overall", p["planner"], {"rank": rank, **cells}))
+    scored = {p["planner"] for p in ranked}
+    for planner in planners:
+        if planner not in scored:
+            rows.append(
+                (
+                    "overall",
+                    planner,
+                    {
+                        "rank": "",
+                        "planner": planner,
+                        "score": "not scored yet",
+                        "ci95": None,
+                        "instances": 0,
+                        "unscored": _unscored_text(unscored.get((planner, None))),
+                    },
+                )
+            )
     domains: dict[str, dict[str, Any]] = {}
     for d in scores.get("domains", []):
         if d["planner"] not in planners:
@@ -146,8 +196,16 @@ def _score_rows(
         text = fmt_number(d["score"], 3)
         if d["ci95"] is not None:
             text += f" \u00b1 {fmt_number(d['ci95'], 2)}"
+        more = _unscored_text(unscored.get((d["planner"], d["domain"])))
+        if more:
+            text += f" (+{more})"
         cells = domains.setdefault(d["domain"], {"domain": d["domain"]})
         cells[_grid_key(d["planner"], planners)] = text
+    for (planner, domain), counts in unscored.items():
+        if domain is None or planner not in planners:
+            continue
+        cells = domains.setdefault(domain, {"domain": domain})
+        cells.setdefault(_grid_key(planner, planners), _unscored_text(counts))
     rows += [("domains", name, cells) for name, cells in domains.items()]
     return rows
 
@@ -168,6 +226,7 @@ def _fields(snap: Mapping[str, Any]) -> dict[str, Any]:
     fields: dict[str, Any] = {
         "experiment": snap["experiment"],
         "state": snap["state"],
+        "kept": snap.get("kept") or "",
         "counts": _counts_text(snap["counts"]),
         "rules": snap["rules"],
         "scores-note": _score_note(snap["scores"]),
@@ -185,14 +244,14 @@ def _rows(snap: Mapping[str, Any]) -> dict[str, list[tuple[str, Mapping[str, Any
     for job in snap["jobs"]:
         grid.setdefault(job["instance"], {"instance": job["instance"]})[
             _grid_key(job["planner"], planners)
-        ] = _grid_cell(job)
+        ] = _grid_value(job)
     tables: dict[str, list[tuple[str, Mapping[str, Any]]]] = {
         "grid": list(grid.items()),
         "jobs": [(job["key"], _job_cells(job)) for job in snap["jobs"]],
         "overall": [],
         "domains": [],
     }
-    for table, key, cells in _score_rows(snap["scores"], planners):
+    for table, key, cells in _score_rows(snap["scores"], planners, snap["jobs"]):
         tables[table].append((key, cells))
     return tables
 
@@ -219,10 +278,11 @@ class _Translator:
                 (
                     "grid",
                     job["instance"],
-                    {_grid_key(job["planner"], planners): _grid_cell(job)},
+                    {_grid_key(job["planner"], planners): _grid_value(job)},
                 ),
                 ("jobs", job["key"], _job_cells(job)),
             ]
+            rows += _score_rows(self.live.scores(), planners, self.live.jobs())
             return [rows_event(rows), fields_event({"counts": _counts_text(event["counts"])})]
         if kind == "progress":
             job = self.live.job(event["key"])
@@ -233,7 +293,7 @@ class _Translator:
                 (
                     "grid",
                     job["instance"],
-                    {_grid_key(job["planner"], planners): _grid_cell(job)},
+                    {_grid_key(job["planner"], planners): _grid_value(job)},
                 ),
                 ("jobs", job["key"], {"progress": _progress(job)}),
             ]
@@ -241,96 +301,15 @@ class _Translator:
         if kind == "scores":
             scores = event["scores"]
             return [
-                rows_event(_score_rows(scores, self.live.planners())),
+                rows_event(_score_rows(scores, self.live.planners(), self.live.jobs())),
                 fields_event({"scores-note": _score_note(scores), "figures": event["seq"]}),
             ]
         if kind == "batch":
-            return [fields_event({"state": event["state"]})]
+            return [fields_event({"state": event["state"], "kept": event.get("kept") or ""})]
         return []
 
 
 # ------------------------------------------------------------- the figures
-
-
-def bar_chart(
-    groups: Mapping[str, Mapping[str, float | None]],
-    series: Sequence[str],
-    *,
-    title: str,
-    y_label: str,
-    y_max: float | None = None,
-    width: int = 760,
-    height: int = 300,
-) -> Markup:
-    """Grouped bars: one group per key of `groups` (instances, domains), one bar per
-    name of `series` (planners) in each; every label escaped."""
-    left, right, top, bottom = 64, 16, 28, 110
-    legend_h = 16 * min(len(series), 8)
-    plot_w, plot_h = width - left - right, height - top - bottom
-    values = [v for g in groups.values() for v in g.values() if v is not None and math.isfinite(v)]
-    hi = y_max if y_max is not None else max([0.0, *values]) or 1.0
-    lo = min([0.0, *values])
-    if hi == lo:
-        hi = lo + 1.0
-    names = list(groups)
-    slot = plot_w / max(1, len(names))
-    bar = slot * 0.8 / max(1, len(series))
-
-    def y(v: float) -> float:
-        return round(top + plot_h - plot_h * (v - lo) / (hi - lo), 1)
-
-    parts = [
-        f'<text x="{left}" y="16" font-family="sans-serif" font-size="13">{esc(title)}</text>',
-        f'<rect x="{left}" y="{top}" width="{plot_w}" height="{plot_h}" fill="none" stroke="#888"/>',
-    ]
-    for k in range(5):
-        v = lo + (hi - lo) * k / 4
-        parts.append(
-            f'<line x1="{left}" x2="{left + plot_w}" y1="{y(v)}" y2="{y(v)}" stroke="#ddd"/>'
-            f'<text x="{left - 4}" y="{y(v) + 4}" text-anchor="end" font-family="sans-serif"'
-            f' font-size="11">{esc(fmt_number(v, 3))}</text>'
-        )
-    parts.append(
-        f'<text x="14" y="{top + plot_h / 2}" text-anchor="middle" font-family="sans-serif"'
-        f' font-size="12" transform="rotate(-90 14 {top + plot_h / 2})">{esc(y_label)}</text>'
-    )
-    if not names:
-        parts.append(
-            f'<text x="{left + plot_w / 2}" y="{top + plot_h / 2}" text-anchor="middle"'
-            f' font-family="sans-serif" font-size="12" fill="#666">no data yet</text>'
-        )
-    for i, name in enumerate(names):
-        x0 = left + slot * i + slot * 0.1
-        for k, s in enumerate(series):
-            value = groups[name].get(s)
-            if value is None or not math.isfinite(value):
-                continue
-            y0, y1 = sorted((y(value), y(max(lo, 0.0))))
-            parts.append(
-                f'<rect x="{round(x0 + bar * k, 1)}" y="{y0}" width="{round(bar, 1)}"'
-                f' height="{round(max(y1 - y0, 0.5), 1)}" fill="{PALETTE[k % len(PALETTE)]}">'
-                f"<title>{esc(name)}: {esc(s)} {esc(fmt_number(value))}</title></rect>"
-            )
-        cx = round(left + slot * (i + 0.5), 1)
-        cy = top + plot_h + 8
-        label = name if len(name) <= 28 else name[:27] + "\u2026"
-        parts.append(
-            f'<text x="{cx}" y="{cy}" text-anchor="end" font-family="sans-serif" font-size="10"'
-            f' transform="rotate(-50 {cx} {cy})">{esc(label)}</text>'
-        )
-    for k, s in enumerate(series[:8]):
-        ly = height + 16 * k + 4
-        parts.append(
-            f'<rect x="{left}" y="{ly}" width="10" height="10" fill="{PALETTE[k % len(PALETTE)]}"/>'
-            f'<text x="{left + 16}" y="{ly + 9}" font-family="sans-serif" font-size="11">'
-            f"{esc(s)}</text>"
-        )
-    total = height + legend_h
-    return Markup(
-        f'<svg xmlns="http://www.w3.org/2000/svg" width="{width}" height="{total}"'
-        f' viewBox="0 0 {width} {total}" role="img" aria-label="{esc(title)}">'
-        f"<title>{esc(title)}</title>" + "".join(parts) + "</svg>\n"
-    )
 
 
 def _scores_svg(live: BatchLive) -> Markup:
@@ -417,7 +396,14 @@ def _index(live: BatchLive) -> str:
             field("counts", _counts_text(snap["counts"])),
             ".",
         ),
+        h("p", field("kept", snap.get("kept") or ""), class_="kept-line"),
         h("h2", "Planner x instance"),
+        h(
+            "p",
+            "Each cell is a job, coloured by its state; it links to the job's session: ",
+            [h("span", s, data_state=s) for s in STATUSES],
+            class_="legend muted",
+        ),
         live_table("grid", grid_cols, rows["grid"], state_field=None),
         h("h2", "IPPC scores so far (", field("rules", snap["rules"]), ")"),
         h("p", field("scores-note", _score_note(snap["scores"])), class_="muted"),
@@ -428,7 +414,8 @@ def _index(live: BatchLive) -> str:
                 ("planner", "planner"),
                 ("score", "score"),
                 ("ci95", "95% CI"),
-                ("instances", "instances"),
+                ("instances", "instances scored"),
+                ("unscored", "not scored yet"),
             ],
             rows["overall"],
             state_field=None,
@@ -445,9 +432,143 @@ def _index(live: BatchLive) -> str:
         h("h3", "Reward per round (running mean)"),
         h("div", rewards, class_="figures"),
         h("h2", "Jobs"),
-        live_table("jobs", JOB_COLUMNS, rows["jobs"]),
+        live_table("jobs", JOB_COLUMNS, rows["jobs"], links={"key": "/job/{key}"}),
         events="/events",
         nav={"rddl-batch": "/", "snapshot (JSON)": "/snapshot.json"},
+    )
+
+
+# ------------------------------------------------------------- a job's page
+
+JOB_FACTS = (
+    ("planner", "planner"),
+    ("instance", "instance"),
+    ("domain", "domain"),
+    ("job-state", "state"),
+    ("job-progress", "progress"),
+    ("attempts", "attempts"),
+    ("job-reason", "reason"),
+    ("job-rounds", "rounds played"),
+    ("job-mean", "mean round reward"),
+)
+SESSION_LABELS = (
+    ("server_session_id", "session number"),
+    ("client_name", "client"),
+    ("seed", "seed"),
+    ("num_rounds", "rounds to play"),
+    ("rounds_used", "rounds played"),
+    ("time_allowed_ms", "time allowed (ms)"),
+    ("total_reward", "total reward"),
+    ("status", "status"),
+    ("reason", "reason"),
+)
+ROUND_COLUMNS = [
+    ("round", "round"),
+    ("reward", "reward"),
+    ("turns", "turns"),
+    ("status", "status"),
+    ("seconds", "seconds"),
+]
+
+
+def _job(live: BatchLive, key: str) -> dict[str, Any]:
+    job = live.job(key)
+    if job is None:
+        raise not_found(f"job {key}")
+    return job
+
+
+def _job_fields(job: Mapping[str, Any]) -> dict[str, Any]:
+    return {
+        "planner": job["planner"],
+        "instance": job["instance"],
+        "domain": job.get("domain") or "",
+        "job-state": job["status"],
+        "job-progress": _progress(job),
+        "attempts": job.get("attempts"),
+        "job-reason": job.get("reason") or "",
+        "job-rounds": job.get("rounds"),
+        "job-mean": job.get("mean"),
+        "job-chart": f"{job['status']}-{job.get('rounds')}",
+    }
+
+
+def _round_rows(session: Mapping[str, Any] | None) -> list[tuple[str, dict[str, Any]]]:
+    rows = []
+    for k, r in enumerate((session or {}).get("rounds", ())):
+        cells = {
+            "round": r["round"] if r["counted"] else f"{r['round']} (practice)",
+            "reward": r["reward"],
+            "turns": r["turns"],
+            "status": r["status"],
+            "seconds": r["seconds"],
+            "state": "failed" if r["status"] in ("dropped", "interrupted") else "finished",
+        }
+        rows.append((str(k), cells))
+    return rows
+
+
+def job_events(live: BatchLive, key: str) -> list[dict[str, Any]]:
+    """The events that draw a job's page (a viewer's first ones, and after each change)."""
+    job = _job(live, key)
+    rows = [("rounds", k, c) for k, c in _round_rows(live.session(key))]
+    return [rows_event(rows, reset=True), fields_event(_job_fields(job))]
+
+
+def _job_page(live: BatchLive, key: str) -> str:
+    job = _job(live, key)
+    fields = _job_fields(job)
+    got = live.session(key)
+    facts = h(
+        "dl",
+        [(h("dt", label), h("dd", field(name, fields[name]))) for name, label in JOB_FACTS],
+        class_="facts",
+    )
+    if got is None:
+        session = h(
+            "p",
+            "No session in the database yet: it is there once the job is done"
+            " (a job that failed before its session began has none).",
+            class_="muted",
+        )
+    else:
+        facts_s = got["session"]
+        session = h(
+            "dl",
+            [(h("dt", label), h("dd", facts_s.get(name))) for name, label in SESSION_LABELS],
+            class_="facts",
+        )
+    chart = h(
+        "img",
+        src=f"{job_path(key)}/rewards.svg?v={quote(fields['job-chart'])}",
+        alt="reward per round",
+        data_page_chart=f"{job_path(key)}/rewards.svg",
+        data_version="job-chart",
+    )
+    return page(
+        f"job {key}",
+        facts,
+        h("h2", "Session"),
+        session,
+        h("h2", "Reward per round"),
+        chart,
+        h("h2", "Rounds"),
+        live_table("rounds", ROUND_COLUMNS, _round_rows(got)),
+        events=f"{job_path(key)}/events",
+        nav={"rddl-batch": "/", "snapshot (JSON)": "/snapshot.json"},
+    )
+
+
+def _job_rewards_svg(live: BatchLive, key: str) -> Markup:
+    _job(live, key)
+    got = live.session(key)
+    rounds = [r for r in (got or {}).get("rounds", ()) if r["counted"]]
+    return line_chart(
+        {key: [r["reward"] for r in rounds]},
+        title=f"{key}: reward per round",
+        x_start=rounds[0]["round"] if rounds and rounds[0]["round"] is not None else 1,
+        width=560,
+        height=240,
     )
 
 
@@ -463,7 +584,23 @@ def batch_routes(live: BatchLive, feed: Feed) -> Routes:
         "/figure/rewards/{instance}.svg",
         lambda r: Response(_rewards_svg(live, r.params["instance"]), content_type=SVG),
     )
+    routes.add("/job/{key}", lambda r: Response(_job_page(live, r.params["key"])))
+    routes.add("/job/{key}/events", lambda r: _job_stream(live, feed, r.params["key"]))
+    routes.add(
+        "/job/{key}/rewards.svg",
+        lambda r: Response(_job_rewards_svg(live, r.params["key"]), content_type=SVG),
+    )
     return routes
+
+
+def _job_stream(live: BatchLive, feed: Feed, key: str) -> EventStream:
+    _job(live, key)
+    return EventStream(feed, [job_topic(key)], lambda: job_events(live, key))
+
+
+def job_topic(key: str) -> str:
+    """The feed's topic of a job's page."""
+    return f"job:{key}"
 
 
 class BatchWeb:
@@ -481,6 +618,7 @@ class BatchWeb:
         self.grace = grace
         self.flush = flush
         self._updates = PageUpdates()
+        self._jobs_changed: set[str] = set()  # jobs whose pages are watched and changed
         self.feed = Feed()
         self.port: int | None = None
         self._translate = _Translator(live)
@@ -510,6 +648,37 @@ class BatchWeb:
                 pass
         self._thread.join(self.grace + 5.0)
 
+    def keep_up(
+        self, *, say: Callable[[str], object] | None = None, stopped: threading.Event | None = None
+    ) -> None:
+        """After the run: keep the page up, and say so on the page, in the log and with
+        `say` (the CLI's stderr), until the process gets Ctrl-C (SIGINT) or SIGTERM (or
+        `stopped` is set); then stop it. A short run ends before a browser can open its
+        page: this is what lets one look at it."""
+        url = web_url(self.options, self.port) if self.port is not None else "the web view"
+        self.live.page_kept(
+            "The run is over; this page stays up until rddl-batch is stopped (Ctrl-C)."
+        )
+        line = f"the run is over; the web view stays up on {url} until you stop rddl-batch (Ctrl-C)"
+        log.info("%s", line)
+        if say is not None:
+            say(line)
+        stop = stopped or threading.Event()
+        old = None
+        try:
+            old = signal.signal(signal.SIGTERM, lambda signum, frame: stop.set())
+        except ValueError:  # not the main thread: Ctrl-C and `stopped` only
+            pass
+        try:
+            while not stop.wait(0.5):
+                pass
+        except KeyboardInterrupt:
+            pass
+        finally:
+            if old is not None:
+                signal.signal(signal.SIGTERM, old)
+            self.stop()
+
     def _publish(self, event: dict[str, Any]) -> None:
         """In the run loop's thread: hand the event to the page's loop, never waiting."""
         token = self._token
@@ -521,11 +690,23 @@ class BatchWeb:
             pass
 
     def _send(self, event: dict[str, Any]) -> None:
-        """In the page's loop: gathered until the next flush."""
+        """In the page's loop: gathered until the next flush (a job's page: its
+        whole picture again, at most once a flush)."""
+        if event["type"] in ("job", "progress"):
+            key = event["job"]["key"] if event["type"] == "job" else event["key"]
+            if self.feed.watched(job_topic(key)):
+                self._jobs_changed.add(key)
         if not self.feed.watched(TOPIC):
             return
         for out in self._translate(event):
             self._updates.add(out)
+
+    def _publish_jobs(self) -> None:
+        changed, self._jobs_changed = self._jobs_changed, set()
+        for key in changed:
+            if self.feed.watched(job_topic(key)):
+                for event in job_events(self.live, key):
+                    self.feed.publish(event, job_topic(key))
 
     async def _flush(self) -> None:
         while True:
@@ -534,6 +715,7 @@ class BatchWeb:
             if self.feed.watched(TOPIC):
                 for event in events:
                     self.feed.publish(event, TOPIC)
+            self._publish_jobs()
 
     def _main(self) -> None:
         try:
@@ -559,6 +741,7 @@ class BatchWeb:
             await self._stop.wait()
             for event in self._updates.take():  # (the last changes, then the end)
                 self.feed.publish(event, TOPIC)
+            self._publish_jobs()
             self.feed.close()  # the viewers' streams end after what is queued
             with trio.move_on_after(self.grace):
                 while self.feed.viewers:

@@ -57,7 +57,9 @@ Pages and the events live.js applies (`html.py`)::
     row_event(table, key, cells); rows_event([(table, key, cells)], reset=True)
     remove_event(table, key); fields_event({"running": 4})
 
-  A row's `state` cell (running/finished/failed...) colours it. A chart
+  A row's `state` cell (running/finished/failed...) colours it; a cell
+  `cell(text, state=..., href="/path")` carries its own state (it colours
+  that cell alone) and a link to a path of the view. A chart
   cell is an <img> of an SVG the server draws; live.js reloads it when the
   cell named by its version field changes.
 
@@ -78,6 +80,7 @@ from .chart import line_chart, sparkline
 from .feed import Feed, Subscription, encode_event, to_json
 from .html import (
     Markup,
+    cell,
     esc,
     field,
     fields_event,
@@ -131,6 +134,7 @@ __all__ = [
     "WebOptions",
     "WebServer",
     "encode_event",
+    "cell",
     "esc",
     "field",
     "fields_event",

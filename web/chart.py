@@ -154,4 +154,85 @@ def line_chart(
     return _svg(width, total_h, title or f"{y_label} per {x_label}", *parts)
 
 
-__all__ = ["PALETTE", "line_chart", "sparkline"]
+def bar_chart(
+    groups: Mapping[str, Mapping[str, float | None]],
+    series: Sequence[str],
+    *,
+    title: str,
+    y_label: str,
+    y_max: float | None = None,
+    width: int = 760,
+    height: int = 300,
+) -> Markup:
+    """Grouped bars: one group per key of `groups` (instances, domains), one bar per
+    name of `series` (planners) in each; every label escaped."""
+    left, right, top, bottom = 64, 16, 28, 110
+    legend_h = 16 * min(len(series), 8)
+    plot_w, plot_h = width - left - right, height - top - bottom
+    values = [v for g in groups.values() for v in g.values() if v is not None and math.isfinite(v)]
+    hi = y_max if y_max is not None else max([0.0, *values]) or 1.0
+    lo = min([0.0, *values])
+    if hi == lo:
+        hi = lo + 1.0
+    names = list(groups)
+    slot = plot_w / max(1, len(names))
+    bar = slot * 0.8 / max(1, len(series))
+
+    def y(v: float) -> float:
+        return round(top + plot_h - plot_h * (v - lo) / (hi - lo), 1)
+
+    parts = [
+        f'<text x="{left}" y="16" font-family="sans-serif" font-size="13">{esc(title)}</text>',
+        f'<rect x="{left}" y="{top}" width="{plot_w}" height="{plot_h}" fill="none" stroke="#888"/>',
+    ]
+    for k in range(5):
+        v = lo + (hi - lo) * k / 4
+        parts.append(
+            f'<line x1="{left}" x2="{left + plot_w}" y1="{y(v)}" y2="{y(v)}" stroke="#ddd"/>'
+            f'<text x="{left - 4}" y="{y(v) + 4}" text-anchor="end" font-family="sans-serif"'
+            f' font-size="11">{esc(fmt_number(v, 3))}</text>'
+        )
+    parts.append(
+        f'<text x="14" y="{top + plot_h / 2}" text-anchor="middle" font-family="sans-serif"'
+        f' font-size="12" transform="rotate(-90 14 {top + plot_h / 2})">{esc(y_label)}</text>'
+    )
+    if not names:
+        parts.append(
+            f'<text x="{left + plot_w / 2}" y="{top + plot_h / 2}" text-anchor="middle"'
+            f' font-family="sans-serif" font-size="12" fill="#666">no data yet</text>'
+        )
+    for i, name in enumerate(names):
+        x0 = left + slot * i + slot * 0.1
+        for k, s in enumerate(series):
+            value = groups[name].get(s)
+            if value is None or not math.isfinite(value):
+                continue
+            y0, y1 = sorted((y(value), y(max(lo, 0.0))))
+            parts.append(
+                f'<rect x="{round(x0 + bar * k, 1)}" y="{y0}" width="{round(bar, 1)}"'
+                f' height="{round(max(y1 - y0, 0.5), 1)}" fill="{PALETTE[k % len(PALETTE)]}">'
+                f"<title>{esc(name)}: {esc(s)} {esc(fmt_number(value))}</title></rect>"
+            )
+        cx = round(left + slot * (i + 0.5), 1)
+        cy = top + plot_h + 8
+        label = name if len(name) <= 28 else name[:27] + "\u2026"
+        parts.append(
+            f'<text x="{cx}" y="{cy}" text-anchor="end" font-family="sans-serif" font-size="10"'
+            f' transform="rotate(-50 {cx} {cy})">{esc(label)}</text>'
+        )
+    for k, s in enumerate(series[:8]):
+        ly = height + 16 * k + 4
+        parts.append(
+            f'<rect x="{left}" y="{ly}" width="10" height="10" fill="{PALETTE[k % len(PALETTE)]}"/>'
+            f'<text x="{left + 16}" y="{ly + 9}" font-family="sans-serif" font-size="11">'
+            f"{esc(s)}</text>"
+        )
+    total = height + legend_h
+    return Markup(
+        f'<svg xmlns="http://www.w3.org/2000/svg" width="{width}" height="{total}"'
+        f' viewBox="0 0 {width} {total}" role="img" aria-label="{esc(title)}">'
+        f"<title>{esc(title)}</title>" + "".join(parts) + "</svg>\n"
+    )
+
+
+__all__ = ["PALETTE", "bar_chart", "line_chart", "sparkline"]

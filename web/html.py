@@ -197,6 +197,8 @@ def live_table(
                         ),
                     )
                 )
+            elif isinstance(value, Mapping):
+                tds.append(_rich_cell(field, value))
             else:
                 tds.append(h("td", _cell(value), data_field=field))
         state = cells.get(state_field) if (state_field and key is not None) else None
@@ -219,6 +221,30 @@ def live_table(
         h("template", row(None, {}), data_row_for=table),
         class_="live",
     )
+
+
+def cell(text: Any, state: str | None = None, href: str | None = None) -> dict[str, Any]:
+    """A table cell with its own state (it colours the cell, as a row's `state`
+    colours the row) and a link (a path of this view: it must start with one `/`)."""
+    if href is not None and not _local_path(href):
+        raise ValueError(f"not a path of this view: {href!r}")
+    out: dict[str, Any] = {"text": fmt_number(text) if isinstance(text, float) else text}
+    if state is not None:
+        out["state"] = state
+    if href is not None:
+        out["href"] = href
+    return out
+
+
+def _local_path(href: Any) -> bool:
+    return isinstance(href, str) and href.startswith("/") and not href.startswith("//")
+
+
+def _rich_cell(field: str, value: Mapping[str, Any]) -> Markup:
+    text = _cell(value.get("text"))
+    href = value.get("href")
+    inner = h("a", text, href=href) if _local_path(href) else text
+    return h("td", inner, data_field=field, data_state=value.get("state"))
 
 
 def _cell(value: Any) -> Markup:
@@ -279,6 +305,7 @@ __all__ = [
     "join",
     "live_table",
     "page",
+    "cell",
     "remove_event",
     "row_event",
     "rows_event",

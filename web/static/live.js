@@ -4,6 +4,7 @@
 // The events (see docs/web.md):
 //   {"type": "rows", "reset": bool, "rows": [{"table", "key", "cells": {...}, "remove"?}]}
 //   {"type": "fields", "fields": {...}}
+// A cell is a value, or {"text", "state"?, "href"?} (its own colour and link).
 "use strict";
 (function () {
   const body = document.body;
@@ -37,12 +38,39 @@
     img.src = fill(img.dataset.chart, key) + "?v=" + encodeURIComponent(v);
   }
 
+  function localPath(href) {
+    return typeof href === "string" && href.startsWith("/") && !href.startsWith("//");
+  }
+
+  // a cell {"text", "state"?, "href"?}: its own state (colour) and a link
+  // to a path of this view (anything else is not made a link)
+  function setRichCell(el, value) {
+    const text = value.text === null || value.text === undefined ? "" : String(value.text);
+    if (value.state === undefined || value.state === null) delete el.dataset.state;
+    else el.dataset.state = String(value.state);
+    if (localPath(value.href)) {
+      let a = el.firstElementChild;
+      if (!a || a.tagName !== "A") {
+        a = document.createElement("a");
+        el.replaceChildren(a);
+      }
+      a.setAttribute("href", value.href);
+      a.textContent = text;
+    } else {
+      el.textContent = text;
+    }
+  }
+
   function setCells(tr, key, cells, stateField) {
     for (const el of tr.querySelectorAll("[data-field]")) {
       const name = el.dataset.field;
       if (Object.prototype.hasOwnProperty.call(cells, name)) {
         const value = cells[name];
-        el.textContent = value === null || value === undefined ? "" : String(value);
+        if (value !== null && typeof value === "object" && el.tagName === "TD") {
+          setRichCell(el, value);
+        } else {
+          el.textContent = value === null || value === undefined ? "" : String(value);
+        }
       }
     }
     for (const a of tr.querySelectorAll("a[data-href]")) {
