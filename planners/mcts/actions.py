@@ -184,7 +184,7 @@ class ActionChooser:
         for name, idx in inert:
             mask = self._inert.setdefault(name, np.zeros(defaults[name].shape[1:], dtype=bool))
             mask[idx] = True
-        self._inert_ok: dict[int, bool] = {}  # library row -> no inert grounding set
+        self._projection: dict[int, int] = {}  # library row -> row with none set
         enumerated = enumerate_boolean(sim, settings.enumerate_limit, inert)
         self.pool: Array | None = None if enumerated is None else self.lib.add(enumerated)
         """Library rows the rollouts draw from (None: coin flips instead)."""
@@ -258,11 +258,17 @@ class ActionChooser:
         return out
 
     def _without_inert(self, rows: Array) -> Array:
-        """`rows` less the joint actions that set an inert grounding (each is
-        worth what it is without that grounding); all of them if none is left."""
+        """`rows` less the joint actions that set a skipped grounding, each
+        replaced by itself with those groundings at their default (its
+        *projection*) where that one is not among `rows` already: the
+        projection is worth at least as much, and legal wherever the action
+        is (`relevance.removable_inert` and `useless_actions` leave out only
+        groundings the constraints allow at their default), so a sampled set
+        of candidates loses nothing by it. With every legal action in `rows`
+        the projections are all there: the rows that set none, in order."""
         if not self._inert or len(rows) == 0:
             return rows
-        todo = [int(r) for r in rows.tolist() if int(r) not in self._inert_ok]
+        todo = [int(r) for r in rows.tolist() if int(r) not in self._projection]
         if todo:
             acts = self.lib.take(np.array(todo, dtype=np.int64))
             defaults = self.sim.noop(1)
@@ -270,10 +276,19 @@ class ActionChooser:
             for name, mask in self._inert.items():
                 differs = acts[name][:, mask] != defaults[name][:, mask]
                 bad |= differs.any(axis=1)
-            for r, b in zip(todo, bad.tolist(), strict=True):
-                self._inert_ok[r] = not b
-        keep = np.array([self._inert_ok[int(r)] for r in rows.tolist()], dtype=bool)
-        return rows[keep] if keep.any() else rows
+                acts[name][:, mask] = defaults[name][:, mask]
+            projected = self.lib.add(acts)
+            for r, b, q in zip(todo, bad.tolist(), projected.tolist(), strict=True):
+                self._projection[r] = int(q) if b else r
+        listed = [int(r) for r in rows.tolist()]
+        keep = [r for r in listed if self._projection[r] == r]
+        present = set(keep)
+        for r in listed:
+            q = self._projection[r]
+            if q not in present:
+                present.add(q)
+                keep.append(q)
+        return np.array(keep, dtype=np.int64)
 
     def _trim(self, rows: Array) -> Array:
         """At most `max_actions` candidates: noop (row 0) if there, then a

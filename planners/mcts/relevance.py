@@ -771,3 +771,23 @@ def removable_inert(fast: ScalarStep) -> list[tuple[str, tuple[int, ...]]]:
     parts = _constraint_parts(constraints, cdefs, _namespace(fast), boolean)
     kept = _kept_by(parts, removable, defaults, boolean)
     return [key for key in inert if f"a{index[key]}" not in kept]
+
+
+def downward_closed(fast: ScalarStep, skipped: Iterable[tuple[str, tuple[int, ...]]] = ()) -> bool:
+    """Whether every part of a legal joint action is legal, proven: each
+    conjunct of the constraints stays true as any bool grounding it reads
+    (but those in `skipped`, which stay at their default) goes back to its
+    default (max-nondef-actions only counts fewer). Where this holds, the
+    legal joint actions are found by growing the ones legal alone, as the C
+    walk of `ippc_enum` does; elsewhere (`move => permit`: move alone is
+    illegal, move and permit legal) that walk would miss some."""
+    legal = _read_constraints(fast)
+    if legal is None:
+        return False
+    constraints, cdefs = legal
+    left = set(skipped)
+    removable = {f"a{j}" for j, key in enumerate(fast.action_keys) if key not in left}
+    defaults = {f"a{j}": fast.noop[j] for j in range(len(fast.action_keys))}
+    boolean = _boolean(fast)
+    parts = _constraint_parts(constraints, cdefs, _namespace(fast), boolean)
+    return not _kept_by(parts, removable, defaults, boolean)

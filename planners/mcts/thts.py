@@ -92,6 +92,7 @@ from ...rddl.simulator import Simulator
 from .actions import ActionChooser, state_dependent
 from .heuristic import RewardLocks
 from .options import Settings
+from .relevance import downward_closed
 from .stats import SearchStats
 
 log = logging.getLogger(__name__)
@@ -332,6 +333,8 @@ class THTS:
         if any(p.range != "bool" for p in sim.action_fluents) or self.chooser.solver is None:
             return False
         inert = self.chooser.skipped
+        if not downward_closed(self.fast, inert):
+            return False  # the walk could miss legal joint actions in other states
         noop = self.fast.noop
         keys = [(i, key) for i, key in enumerate(self.fast.action_keys) if key not in inert]
         grounds = [(i, 0.0 if noop[i] else 1.0) for i, _ in keys]
