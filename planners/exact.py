@@ -57,6 +57,15 @@ from ..rddl.simulator import Simulator, State
 from ..rddl.wire import WireCodec
 from ..rddl.writer import write
 from .base import Observation, Planner, PlannerError, SessionInfo, WireFluent
+from .budget import (
+    DEFAULT_MEMORY_FRACTION,
+    StartupOverrun,
+    describe_bytes,
+    memory_budget,
+    rows_within,
+    run_within,
+    step_cost,
+)
 from .mcts import enumerate_boolean
 
 log = logging.getLogger(__name__)
@@ -65,6 +74,12 @@ Array = np.ndarray[Any, Any]
 
 PROB_SUFFIX = "__prob-true"
 """Appended to a state fluent's name for its probability in the rewritten model."""
+
+TRANSITION_BYTES = 75
+"""Peak bytes a (state, action, successor) triple takes while it is found."""
+
+DEFAULT_STARTUP = 60.0
+"""Seconds `exact` may take to solve an instance by default (option startup)."""
 
 
 class ExactUnsupported(Exception):
@@ -307,6 +322,14 @@ def _action_key(actions: Mapping[str, Array], names: list[str], row: int) -> byt
     return b"".join(np.ascontiguousarray(actions[n][row : row + 1]).tobytes() for n in names)
 
 
+def table_bytes(n_states: int, n_actions: int, n_bits: int, horizon: int, transitions: int) -> int:
+    """Bytes a solution of this size takes: per state its bits, its actions'
+    legality, rewards and one Q-value per step left, one value per step left;
+    per transition its peak while found (`TRANSITION_BYTES`)."""
+    per_state = n_bits + n_actions * (1 + 8 + 8 * (horizon + 1)) + 8 * (horizon + 1)
+    return n_states * per_state + transitions * TRANSITION_BYTES
+
+
 def _codes(bits: Array) -> Array:
     weights = np.left_shift(np.int64(1), np.arange(bits.shape[1], dtype=np.int64))
     return bits.astype(np.int64) @ weights
@@ -319,14 +342,18 @@ def solve(
     max_actions: int = 4096,
     max_branching: int = 14,
     max_transitions: int = 20_000_000,
+    memory: int | None = None,
 ) -> Solution:
     """Value iteration over the states reachable from the initial state.
 
     Raises `ExactUnsupported` when the model is outside what is enumerated
     (see the module docstring) or too large: more than `max_states`
     reachable states, `max_actions` joint actions, `max_branching`
-    uncertain fluents in one transition, or `max_transitions` (state,
-    action, successor) triples in all.
+    uncertain fluents in one transition, `max_transitions` (state,
+    action, successor) triples in all, or (with `memory`, in bytes) a table
+    larger than that (`table_bytes`): the exploration stops as soon as the
+    states and transitions found so far need more, and nothing larger is
+    allocated.
     """
     pm = probability_model(model)
     world = Simulator(model)
@@ -363,6 +390,7 @@ def solve(
                 max_states,
                 max_branching,
                 max_transitions,
+                memory,
             )
         except _MoreActions as more:
             acts = _union(world, acts, more.actions)
@@ -401,6 +429,7 @@ def _explore(
     max_states: int,
     max_branching: int,
     max_transitions: int,
+    memory: int | None = None,
 ) -> Solution:
     """Breadth-first exploration and value iteration with the joint actions
     `acts`; with `solver`, raises `_MoreActions` when a reachable state has
@@ -437,7 +466,26 @@ def _explore(
     n_transitions = 0
     combos_cache: dict[int, Array] = {}
     frontier, first = start_bits, 0  # states numbered first, first + 1, ...
-    chunk = max(1, 65536 // n_act)
+    rows = 65536
+    if memory is not None:
+        # a chunk's step (every state with every action) takes at most a quarter
+        rows = rows_within(memory // 4, step_cost(sim), rows)
+    chunk = max(1, rows // n_act)
+    horizon = model.horizon or 1
+
+    def check_memory(n_states: int) -> None:
+        if memory is None:
+            return
+        need = table_bytes(n_states, n_act, n_bits, horizon, n_transitions)
+        if need > memory:
+            raise ExactUnsupported(
+                f"its table needs more than the memory budget of {describe_bytes(memory)} "
+                f"(option memory): at least {describe_bytes(need)} for the {n_states} states "
+                f"x {n_act} joint actions x {horizon} steps and {n_transitions} transitions "
+                "found so far"
+            )
+
+    check_memory(1)
     while len(frontier):
         new_codes: list[Array] = []
         for lo in range(0, len(frontier), chunk):
@@ -488,6 +536,7 @@ def _explore(
                     n_transitions += int(keep.sum())
                     if n_transitions > max_transitions:
                         raise ExactUnsupported(f"more than {max_transitions} transitions")
+                    check_memory(first + lo + len(part))
                     row_parts.append(np.broadcast_to((rows0 + rows)[:, None], codes.shape)[keep])
                     succ_codes.append(codes[keep])
                     prob_parts.append(pr[keep])
@@ -499,6 +548,7 @@ def _explore(
         first = int(known_ids.max()) + 1
         if first + len(fresh) > max_states:
             raise ExactUnsupported(f"more than {max_states} reachable states")
+        check_memory(first + len(fresh))
         fresh_ids = first + np.arange(len(fresh), dtype=np.int64)
         order = np.argsort(np.concatenate([known_codes, fresh]), kind="stable")
         known_codes = np.concatenate([known_codes, fresh])[order]
@@ -569,6 +619,11 @@ class ExactPlanner(Planner):
         "max_states": "refuse instances with more reachable states (default 50000)",
         "max_transitions": "refuse instances with more (state, action, successor) triples "
         "(default 20000000; peak memory about 75 bytes each)",
+        "memory": "MiB the solution's table may take; an instance whose table would need "
+        "more is refused before it is allocated (default: "
+        f"{DEFAULT_MEMORY_FRACTION:g} of MemAvailable at the start of the session)",
+        "startup": "seconds the solve may take at the start of the session; an instance not "
+        f"solved by then is refused (default {DEFAULT_STARTUP:g})",
     }
 
     def __init__(self, **options: str) -> None:
@@ -577,18 +632,35 @@ class ExactPlanner(Planner):
         max_transitions = self.int_option("max_transitions", 20_000_000, minimum=1)
         assert max_states is not None and max_transitions is not None
         self.max_states, self.max_transitions = max_states, max_transitions
+        self.memory_mib = self.float_option("memory", None, minimum=1.0)
+        startup = self.float_option("startup", DEFAULT_STARTUP, minimum=0.0)
+        assert startup is not None
+        self.startup = startup
         self.solution: Solution | None = None
         self._codec: WireCodec | None = None
 
     def start_session(self, session: SessionInfo) -> None:
         super().start_session(session)
         started = time.monotonic()
+        memory = memory_budget(self.memory_mib)
         try:
-            self.solution = solve(
-                session.model, max_states=self.max_states, max_transitions=self.max_transitions
+            self.solution = run_within(
+                lambda: solve(
+                    session.model,
+                    max_states=self.max_states,
+                    max_transitions=self.max_transitions,
+                    memory=memory,
+                ),
+                self.startup,
+                "solving",
             )
         except ExactUnsupported as err:
             raise PlannerError(f"cannot solve {session.instance}: {err}") from None
+        except StartupOverrun:
+            raise PlannerError(
+                f"cannot solve {session.instance}: not solved within the start-up "
+                f"allowance of {self.startup:g} s (option startup)"
+            ) from None
         self._codec = WireCodec(session.simulator)
         log.info(
             "exact: %s solved in %.1f s: %d states, optimum %.4f",

@@ -140,6 +140,26 @@ TABLE: tuple[Option, ...] = (
         public=True,
     ),
     Option("particles", "int", 64, "belief particles for POMDPs", minimum=1, public=True),
+    Option(
+        "startup",
+        "float",
+        10.0,
+        "seconds the session's start may take before the first turn's search (relevance "
+        "analysis, C compile, legal actions in C, IDS); what does not fit is skipped with a "
+        "warning (docs/planners-budgets.md)",
+        minimum=0.0,
+        public=True,
+    ),
+    Option(
+        "memory",
+        "float",
+        None,
+        "MiB the search may take: the batch, the candidates per node and the tree's nodes "
+        "are lowered to fit it (docs/planners-budgets.md)",
+        minimum=1.0,
+        public=True,
+        default_text="a quarter of MemAvailable at the start of the session",
+    ),
     # ------------------------------------------------------------ experimental
     Option(
         "engine",

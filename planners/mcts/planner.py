@@ -30,6 +30,7 @@ from .heuristic import IDS, RewardLocks, training_states
 from .options import OPTIONS, Settings, read_settings
 from .relevance import removable_inert, useless_actions
 from .rollouts import Expander, _stack_states
+from .startup import ENUM_SECONDS, IDS_SECONDS, Budgets
 from .stats import SearchStats
 from .thts import THTS
 from .tree import _Node, _Outcome, _Trial, backup, best, refresh, select
@@ -49,7 +50,11 @@ class MCTSPlanner(Planner):
     def __init__(self, **options: str) -> None:
         super().__init__(**options)
         self.settings: Settings = read_settings(self)
-        """The options, typed."""
+        """The options, typed (a session lowers batch, max_actions and max_nodes to its
+        memory budget: `budgets`)."""
+        self._asked = self.settings
+        self.budgets: Budgets | None = None
+        """The last session's start-up allowance and memory sizing (options startup, memory)."""
         self.stats = SearchStats()
         """Counters over the whole session."""
         self.last_turn = SearchStats()
@@ -88,6 +93,8 @@ class MCTSPlanner(Planner):
         sim = self._sim = session.simulator
         self._model = session.model
         self._codec = WireCodec(sim)
+        budgets = self.budgets = Budgets(self, session)
+        self.settings = self._asked
         self._chooser = ActionChooser(sim, self.settings, self.rng)
         self._state_names = [p.name for p in sim.state_fluents]
         self._discrete_obs = all(p.range != "real" for p in sim.observ_fluents)
@@ -103,10 +110,19 @@ class MCTSPlanner(Planner):
             except ScalarUnsupported as err:
                 log.info("mcts: %s: no scalar step (%s); the wave search", session.instance, err)
         if scalar is None:
-            self._warm_up(sim)
-            ids, locks = self._heuristic(session)
+            self.settings = self._chooser.settings = budgets.size_wave(sim, self._asked)
+            self._warm_up(sim, self.settings.batch)
+            ids, locks = budgets.within(
+                "IDS (its joint actions and its learning phase)",
+                lambda: self._heuristic(session),
+                (None, None),
+                "roll-outs instead",
+            )
+            if ids is not None:
+                ids.max_rows = min(ids.max_rows, budgets.ids_rows())
             self._expander = Expander(sim, self._chooser, self.settings, self.rng, ids, locks)
         else:
+            self.settings = budgets.size_thts(sim, self._asked)
             self._thts = self._start_thts(session, scalar, seed)
             self.engine = "thts"
         log.info(
@@ -161,13 +177,18 @@ class MCTSPlanner(Planner):
             rng = np.random.default_rng(None if seed is None else [seed, 1])
             train = training_states(sim, rng)
             states = [scalar.encode_state(train, i) for i in range(min(train.batch, 16))]
+        assert self.budgets is not None
+        if states and not self.budgets.fits(
+            "checking the legal actions in C", ENUM_SECONDS, "the Python solver's candidates"
+        ):
+            states = []
         if search.setup_enum(states):
             log.info("mcts: %s: the legal actions of a state in C", session.instance)
         if st.heuristic == "ids":
             fixed = st.ids_depth or (5 if st.iterations is not None else 0)
             if fixed:
                 search.ids_depth = fixed
-            else:
+            elif self.budgets.fits("learning IDS's depth", IDS_SECONDS, "roll-outs, no IDS"):
                 if not states:
                     rng = np.random.default_rng(None if seed is None else [seed, 1])
                     train = training_states(sim, rng)
@@ -186,7 +207,13 @@ class MCTSPlanner(Planner):
         (`relevance.useless_actions`)."""
         skipped = removable_inert(scalar)  # (those the constraints allow at their default)
         if self.settings.prune_useless:
-            useless = useless_actions(scalar)
+            assert self.budgets is not None
+            useless = self.budgets.within(
+                "the relevance analysis (prune_useless)",
+                lambda: useless_actions(scalar),
+                [],
+                "every action grounding kept",
+            )
             if useless:
                 log.info(
                     "mcts: %s: %d of %d action groundings can never pay: left out",
@@ -246,12 +273,12 @@ class MCTSPlanner(Planner):
         return ids, locks
 
     @staticmethod
-    def _warm_up(sim: Simulator) -> None:
+    def _warm_up(sim: Simulator, largest: int = 4096) -> None:
         """Compile the simulator's functions for every batch size the search
         uses now rather than in the first turn's search, so that the first
         turn keeps its deadline too (a failure is left for the search)."""
         rng = np.random.default_rng(0)  # not the search's: seeded runs stay the same
-        for batch in (1, 2, 4096):
+        for batch in sorted({1, 2, min(4096, largest)}):
             state = sim.initial_state(batch)
             noop = sim.noop(batch)
             try:
@@ -519,6 +546,7 @@ class MCTSPlanner(Planner):
             1, self.settings.batch // (n_acts * self.settings.rollouts * self.settings.modes)
         )
         iterations = self.settings.iterations
+        nodes = sum(len(bucket) for bucket in self._table.values())
         waves = 0
         wave_time = 0.0
         while True:
@@ -539,6 +567,10 @@ class MCTSPlanner(Planner):
             t0 = time.monotonic()
             self._wave(root, size, turn, clock)
             waves += 1
+            if self.budgets is not None and self.budgets.tree_full(
+                nodes, turn, self.settings.max_nodes
+            ):
+                break
             took = time.monotonic() - t0
             if size == trials:
                 # the slower of the last whole wave and a decaying average

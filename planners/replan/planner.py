@@ -7,6 +7,7 @@ search it calls is in `determinised_search.py`.
 from __future__ import annotations
 
 import logging
+import threading
 import time
 from typing import ClassVar
 
@@ -16,10 +17,21 @@ from ...rddl.legal import LegalActions, NoLegalAction, solver_for
 from ...rddl.simulator import SimulationError, Simulator, State
 from ...rddl.wire import WireCodec
 from ..base import Observation, Planner, PlannerError, SessionInfo, WireFluent
+from ..budget import (
+    DEFAULT_STARTUP,
+    MEMORY_HELP,
+    count_within,
+    describe_bytes,
+    memory_budget,
+    rows_within,
+    state_bytes,
+    step_cost,
+)
 from ..determinise import determinise
 from .determinised_search import (
     DEFAULT_EXPAND,
     DEFAULT_MAX_ACTIONS,
+    MAX_NODES,
     Actions,
     PlanStep,
     SearchProblem,
@@ -62,6 +74,11 @@ class ReplanPlanner(Planner):
         "(default true)",
         "seed": "integer seed for sampled outcomes and random actions (default: the client's "
         "--seed, else unseeded)",
+        "startup": "seconds the session's start (the determinised model compiled, the "
+        "candidates enumerated) may take before the first turn; a start not done by then "
+        "goes on in the background while the turns send noop, with a warning (default "
+        f"{DEFAULT_STARTUP:g})",
+        "memory": MEMORY_HELP,
     }
 
     def __init__(self, **options: str) -> None:
@@ -80,6 +97,12 @@ class ReplanPlanner(Planner):
         )
         self.refine = self.bool_option("refine", True)
         self.seed = self.int_option("seed")
+        startup = self.float_option("startup", DEFAULT_STARTUP, minimum=0.0)
+        assert startup is not None
+        self.startup = startup
+        self.memory_mib = self.float_option("memory", None, minimum=1.0)
+        self._building: threading.Thread | None = None
+        self._built: dict[str, object] = {}  # the background start's problem or error
         # counters over the planner's life
         self.searches = 0
         self.replans = 0
@@ -98,6 +121,45 @@ class ReplanPlanner(Planner):
 
     def start_session(self, session: SessionInfo) -> None:
         super().start_session(session)
+        self.problem = None
+        self._codec = WireCodec(session.simulator)
+        built: dict[str, object] = {}
+
+        def build() -> None:
+            try:
+                built["problem"] = self._build(session)
+            except BaseException as err:  # noqa: BLE001 - raised in the thread's turn
+                built["error"] = err
+
+        worker = threading.Thread(target=build, name="replan: start-up", daemon=True)
+        worker.start()
+        worker.join(self.startup)
+        self._built, self._building = built, worker
+        if worker.is_alive():
+            log.warning(
+                "replan: %s: start-up: the determinised search is not built within the "
+                "start-up allowance of %g s (option startup); noop until it is",
+                session.instance,
+                self.startup,
+            )
+        else:
+            self._ready()
+
+    def _ready(self) -> bool:
+        """Whether the search problem is built (raising the build's error)."""
+        if self.problem is not None:
+            return True
+        if self._building is not None and self._building.is_alive():
+            return False
+        if "error" in self._built:
+            raise self._built.pop("error")  # type: ignore[misc]
+        problem = self._built.get("problem")
+        if isinstance(problem, SearchProblem):
+            self.problem = problem
+        return self.problem is not None
+
+    def _build(self, session: SessionInfo) -> SearchProblem:
+        """The session's search problem, sized to the memory budget."""
         t0 = time.monotonic()
         world = session.simulator
         try:
@@ -110,7 +172,8 @@ class ReplanPlanner(Planner):
         else:  # every node asks the solver for its own
             candidates, truncated = world.noop(1), False
         seed = self.seed if self.seed is not None else session.seed
-        self.problem = SearchProblem(
+        expand, max_actions, max_nodes = self._sized(session, det)
+        problem = SearchProblem(
             sim=det,
             world=world,
             candidates=candidates,
@@ -118,21 +181,52 @@ class ReplanPlanner(Planner):
             discount=session.model.discount,
             rng=np.random.default_rng(seed),
             outcomes=self.outcomes,
-            expand=self.expand,
+            expand=expand,
+            max_nodes=max_nodes,
             solver=solver,
-            max_actions=self.max_actions,
+            max_actions=max_actions,
         )
-        self._codec = WireCodec(world)
         log.info(
             "replan: %s, %s determinisation, %s%s, built in %.3f s",
             session.instance,
             self.determinisation,
             "legal joint actions per node"
             if solver is not None
-            else f"{self.problem.n_candidates} candidate joint actions",
+            else f"{problem.n_candidates} candidate joint actions",
             " (truncated: plus random ones)" if truncated else "",
             time.monotonic() - t0,
         )
+        return problem
+
+    def _sized(self, session: SessionInfo, det: Simulator) -> tuple[int, int, int]:
+        """(expand, max_actions, max_nodes) lowered to the memory budget: an
+        expansion's children (expand x max_actions states) stepped in half
+        of it, the search tree's states (twice: the batch and the key) in
+        the other half."""
+        budget = memory_budget(self.memory_mib)
+        cost = step_cost(det)
+        rows = rows_within(budget // 2, cost, self.expand * self.max_actions)
+        expand = max(1, min(self.expand, rows // self.max_actions))
+        max_actions = max(2, min(self.max_actions, rows // expand))
+        node = 2 * state_bytes(det) + 600
+        max_nodes = count_within(budget // 2, node, MAX_NODES)
+        lowered = [
+            f"{name} {asked} -> {got}"
+            for name, asked, got in (
+                ("expand", self.expand, expand),
+                ("max_actions", self.max_actions, max_actions),
+                ("nodes", MAX_NODES, max_nodes),
+            )
+            if got < asked
+        ]
+        log.info(
+            "replan: %s: memory budget %s (option memory); a step costs %s a state: %s",
+            session.instance,
+            describe_bytes(budget),
+            describe_bytes(cost.per_row),
+            ", ".join(lowered) if lowered else "nothing lowered",
+        )
+        return expand, max_actions, max_nodes
 
     def start_round(self, round_num: int) -> None:
         self._plan = []
@@ -202,8 +296,14 @@ class ReplanPlanner(Planner):
         )
 
     def act(self, obs: Observation) -> list[WireFluent]:
-        if self.session is None or self.problem is None or self._codec is None:
+        if self.session is None or self._codec is None:
             raise PlannerError("replan: act() called before start_session()")
+        if not self._ready():
+            log.warning(
+                "replan: turn %d: the determinised search is still being built; noop", obs.turn
+            )
+            return []
+        assert self.problem is not None
         now = time.monotonic()
         deadline = obs.deadline
         if self.time_per_step is not None:

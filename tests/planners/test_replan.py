@@ -359,6 +359,8 @@ def test_options() -> None:
         "max_actions",
         "refine",
         "seed",
+        "startup",
+        "memory",
     }
     with pytest.raises(PlannerError, match="determinisation.*most-likely or all-outcomes"):
         ReplanPlanner(determinisation="sometimes")

@@ -1,0 +1,299 @@
+"""Start-up and memory budgets of the built-in planners.
+
+A planner's start-up (compiling, analyses, enumerations, the first search)
+is part of the session's time, and its memory is the machine's: a planner
+that takes either without bound stops a client, a batch or a robot. This
+module gives the planners what they need to stay within both.
+
+Time: `Startup` is the start-up allowance of one session (option
+`startup`, default `DEFAULT_STARTUP` seconds). A planner asks it before
+each piece of start-up work whether there is time left (`Startup.fits`),
+and skips what does not fit with a WARNING naming what it skipped and why
+(`Startup.skip`). Work that cannot be sized beforehand runs in a worker
+thread with a deadline (`Startup.run`): when the deadline passes, the
+caller goes on without the result and the worker is asked to stop (an
+exception raised in it at its next Python instruction; work inside one long
+C call, such as waiting for a compiler, finishes first and is then
+dropped).
+
+Memory: `memory_budget` is the bytes a planner's working memory may take
+(option `memory`, in MiB; default `DEFAULT_MEMORY_FRACTION` of the memory
+available when the session starts: MemAvailable of /proc/meminfo, and no
+more than that fraction of what an address-space limit (RLIMIT_AS) leaves).
+`step_cost` measures what one simulator step costs per state of a batch
+(every array the step allocates, temporaries included, traced with
+`tracemalloc` on a batch of 1 and of 4 states), so that a planner sizes its
+batches, trees and tables from the instance before it allocates them
+(`rows_within`, `count_within`).
+"""
+
+from __future__ import annotations
+
+import ctypes
+import logging
+import os
+import resource
+import threading
+import time
+import tracemalloc
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import TypeVar
+
+import numpy as np
+
+from ..rddl.simulator import Simulator
+
+log = logging.getLogger(__name__)
+
+T = TypeVar("T")
+
+DEFAULT_STARTUP = 10.0
+"""Seconds of start-up a session is allowed by default (option `startup`),
+on top of the first turn's own time."""
+
+DEFAULT_MEMORY_FRACTION = 0.25
+"""Share of the memory available at the start of a session (MemAvailable)
+a planner takes by default (option `memory` overrides it), so that several
+planners, and the machine's other programs, still fit beside it."""
+
+FALLBACK_MEMORY = 2 << 30
+"""Bytes taken as available where /proc/meminfo cannot be read."""
+
+MARGIN = 0.5
+"""Seconds a start-up piece of work may overrun its deadline: the time for a
+worker thread to notice that it was abandoned, or for the step in progress
+to end (stated in docs/planners-budgets.md)."""
+
+MIB = 1 << 20
+
+STARTUP_HELP = (
+    "seconds of start-up allowed before the first turn's search (compiling the C step, "
+    "analyses, enumerations, learning IDS); what does not fit is skipped with a warning "
+    f"(default {DEFAULT_STARTUP:g})"
+)
+MEMORY_HELP = (
+    "MiB the planner's working memory may take (batches, search tree, tables); batches "
+    "shrink and the tree stops growing to stay within it (default: "
+    f"{DEFAULT_MEMORY_FRACTION:g} of MemAvailable at the start of the session)"
+)
+
+
+class StartupOverrun(Exception):
+    """A piece of start-up work did not end within the start-up allowance."""
+
+
+class _Abandoned(BaseException):
+    """Raised inside an abandoned worker thread to end it (a BaseException,
+    so that the worker's own `except Exception` does not swallow it)."""
+
+
+# ------------------------------------------------------------------ memory
+
+
+def available_memory() -> int | None:
+    """Bytes the kernel reports available now (MemAvailable of
+    /proc/meminfo), else free physical pages; None when neither is known."""
+    try:
+        with open("/proc/meminfo", encoding="ascii") as fh:
+            for line in fh:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    try:
+        return int(os.sysconf("SC_AVPHYS_PAGES")) * int(os.sysconf("SC_PAGE_SIZE"))
+    except (OSError, ValueError, AttributeError):
+        return None
+
+
+def _address_space_left() -> int | None:
+    """Bytes an address-space limit (RLIMIT_AS) leaves this process, if set."""
+    try:
+        soft, _ = resource.getrlimit(resource.RLIMIT_AS)
+    except (OSError, ValueError):
+        return None
+    if soft == resource.RLIM_INFINITY:
+        return None
+    try:
+        with open("/proc/self/statm", encoding="ascii") as fh:
+            used = int(fh.read().split()[0]) * int(os.sysconf("SC_PAGE_SIZE"))
+    except (OSError, ValueError, IndexError):
+        used = 0
+    return max(0, soft - used)
+
+
+def memory_budget(mib: float | None) -> int:
+    """The bytes a planner may take: `mib` MiB when given, else
+    `DEFAULT_MEMORY_FRACTION` of the memory available now (and of what an
+    address-space limit leaves)."""
+    if mib is not None:
+        return max(1, int(mib * MIB))
+    avail = available_memory()
+    budget = int(DEFAULT_MEMORY_FRACTION * (FALLBACK_MEMORY if avail is None else avail))
+    left = _address_space_left()
+    if left is not None:
+        budget = min(budget, int(DEFAULT_MEMORY_FRACTION * left))
+    return max(MIB, budget)
+
+
+@dataclass(frozen=True)
+class StepCost:
+    """What one simulator step costs: `fixed` bytes, plus `per_row` bytes
+    for every state of the batch (all the arrays the step allocates, the
+    largest temporaries included); `state` is the bytes one state holds."""
+
+    per_row: int
+    fixed: int
+    state: int
+
+    def bytes_for(self, rows: int) -> int:
+        """Peak bytes of a step of `rows` states."""
+        return self.fixed + rows * self.per_row
+
+
+def state_bytes(sim: Simulator) -> int:
+    """Bytes of one state's arrays."""
+    return int(sum(v.nbytes for v in sim.initial_state(1).values.values()))
+
+
+def step_cost(sim: Simulator) -> StepCost:
+    """`StepCost` of `sim`, measured on noop steps from the initial state
+    (batches of 1 and 4 states), with its own generator. A step that fails
+    (a noop that is illegal, a model the simulator rejects) is measured as
+    far as it got."""
+    one = state_bytes(sim)
+    peaks = []
+    was_tracing = tracemalloc.is_tracing()
+    if not was_tracing:
+        tracemalloc.start()
+    try:
+        for rows in (1, 4):
+            state = sim.initial_state(rows)
+            noop = sim.noop(rows)
+            base, _ = tracemalloc.get_traced_memory()
+            tracemalloc.reset_peak()
+            try:
+                out = sim.step(state, noop, np.random.default_rng(0), check=False)
+                del out
+            except Exception as err:  # noqa: BLE001 - the search meets and reports it
+                log.debug("budget: step of %d states failed while measured: %s", rows, err)
+            _, peak = tracemalloc.get_traced_memory()
+            peaks.append(max(0, peak - base))
+            del state, noop
+    finally:
+        if not was_tracing:
+            tracemalloc.stop()
+    per_row = max(one, (peaks[1] - peaks[0]) // 3)
+    fixed = max(0, peaks[0] - per_row)
+    return StepCost(per_row=per_row, fixed=fixed, state=one)
+
+
+def rows_within(budget: int, cost: StepCost, want: int, minimum: int = 1) -> int:
+    """The most rows (at most `want`, at least `minimum`) whose step fits in
+    `budget` bytes."""
+    room = (budget - cost.fixed) // max(1, cost.per_row)
+    return int(max(minimum, min(want, room)))
+
+
+def count_within(budget: int, each: int, want: int, minimum: int = 1) -> int:
+    """The most items of `each` bytes (at most `want`, at least `minimum`)
+    that fit in `budget` bytes."""
+    return int(max(minimum, min(want, budget // max(1, each))))
+
+
+def describe_bytes(n: float) -> str:
+    """`n` bytes in MiB, for log lines."""
+    return f"{n / MIB:.0f} MiB" if n >= MIB else f"{n / MIB:.2f} MiB"
+
+
+# ------------------------------------------------------------------ time
+
+
+def _raise_in(thread: threading.Thread) -> None:
+    ident = thread.ident
+    if ident is None or not thread.is_alive():
+        return
+    ctypes.pythonapi.PyThreadState_SetAsyncExc(ctypes.c_ulong(ident), ctypes.py_object(_Abandoned))
+
+
+def run_within(fn: Callable[[], T], seconds: float, what: str) -> T:
+    """`fn()` run in a worker thread; its result, or `StartupOverrun` when
+    it has not returned after `seconds` (the worker is then asked to stop
+    and left behind). An exception of `fn` is raised here."""
+    box: dict[str, object] = {}
+
+    def work() -> None:
+        try:
+            box["value"] = fn()
+        except _Abandoned:
+            log.debug("budget: %s abandoned", what)
+        except BaseException as err:  # noqa: BLE001 - handed to the caller
+            box["error"] = err
+
+    worker = threading.Thread(target=work, name=f"startup: {what}", daemon=True)
+    worker.start()
+    worker.join(max(0.0, seconds))
+    if worker.is_alive():
+        _raise_in(worker)
+        raise StartupOverrun(f"{what} did not end within {max(0.0, seconds):.1f} s")
+    if "error" in box:
+        raise box["error"]  # type: ignore[misc]
+    return box["value"]  # type: ignore[return-value]
+
+
+class Startup:
+    """The start-up allowance of one session: `seconds` from now.
+
+    `fits(estimate)` says whether work expected to take `estimate` seconds
+    ends in time; `skip(what, why)` logs a WARNING for work left out;
+    `run(what, fn)` runs `fn` with the time left as its deadline."""
+
+    def __init__(
+        self,
+        who: str,
+        instance: str,
+        seconds: float,
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
+        self.who = who
+        self.instance = instance
+        self.seconds = seconds
+        self.clock = clock
+        self.started = clock()
+        self.skipped: list[str] = []
+        """What this start-up left out, in order (for tests and reports)."""
+
+    def left(self) -> float:
+        """Seconds of the allowance left (negative once it is spent)."""
+        return self.seconds - (self.clock() - self.started)
+
+    def spent(self) -> float:
+        """Seconds since the start-up began."""
+        return self.clock() - self.started
+
+    def fits(self, estimate: float = 0.0) -> bool:
+        """Whether work of about `estimate` seconds ends within the allowance."""
+        return self.left() > estimate
+
+    def skip(self, what: str, why: str) -> None:
+        """Log that `what` was left out of the start-up, and why."""
+        self.skipped.append(what)
+        log.warning(
+            "%s: %s: start-up: %s skipped (%s); %.2f s of the %.2f s start-up allowance "
+            "spent (option startup)",
+            self.who,
+            self.instance,
+            what,
+            why,
+            self.spent(),
+            self.seconds,
+        )
+
+    def run(self, what: str, fn: Callable[[], T]) -> T:
+        """`fn()` within the time left; `StartupOverrun` when it does not end
+        in time (raised at once when no time is left)."""
+        left = self.left()
+        if left <= 0.0:
+            raise StartupOverrun(f"no start-up time left for {what}")
+        return run_within(fn, left, what)

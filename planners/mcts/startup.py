@@ -1,0 +1,129 @@
+"""The budgets of an `mcts` session: its start-up allowance and its memory
+(`ippc.planners.budget`), as the planner applies them.
+
+Start-up, in the order the planner meets it, and what each step falls back
+on when the allowance (option `startup`) runs short:
+
+* the relevance analysis (`prune_useless`) runs in a worker thread with the
+  time left as its deadline; late, every action grounding is kept;
+* the C step's translation and compile run in a worker thread too; late,
+  the Python step (the compiler, when it was already running, finishes in
+  the background and its library is cached for the next session);
+* the legal actions in C (`setup_enum`) and IDS's learning phase run only
+  when at least `ENUM_SECONDS` / `IDS_SECONDS` are left, else the Python
+  solver's candidates, and roll-outs instead of IDS;
+* the wave engine's IDS is built and learned in a worker thread; late,
+  roll-outs.
+
+Every skip is a WARNING naming what was skipped and why. Memory (option
+`memory`): the batch, the candidates per node and the nodes of the tree
+are sized from the instance (`sizing`), and the wave engine's search stops
+growing the tree within a turn when it holds that many nodes.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable
+from typing import TYPE_CHECKING, TypeVar
+
+from ...rddl.simulator import Simulator
+from ..base import Planner, SessionInfo
+from ..budget import (
+    DEFAULT_STARTUP,
+    Startup,
+    StartupOverrun,
+    memory_budget,
+)
+from . import sizing as _sizing
+from .options import Settings
+
+if TYPE_CHECKING:
+    from .stats import SearchStats
+
+log = logging.getLogger(__name__)
+
+T = TypeVar("T")
+
+ENUM_SECONDS = 1.0
+"""Start-up seconds that must be left to check the legal actions in C."""
+IDS_SECONDS = 1.0
+"""Start-up seconds that must be left to learn IDS's depth."""
+
+
+class Budgets:
+    """One session's start-up allowance and memory sizing."""
+
+    def __init__(self, planner: Planner, session: SessionInfo) -> None:
+        seconds = planner.float_option("startup", None, minimum=0.0)
+        mib = planner.float_option("memory", None, minimum=1.0)
+        self.startup = Startup(
+            "mcts", session.instance, DEFAULT_STARTUP if seconds is None else seconds
+        )
+        self.memory = memory_budget(mib)
+        self.sizing: _sizing.Sizing | None = None
+        self._warned_full = False
+        # a turn's expected seconds, for the wave engine's batch: the option,
+        # else the session's time spread over its steps
+        horizon = max(1, session.model.horizon or 40)
+        self.turn_seconds = session.time_allowed / max(1, session.rounds * horizon)
+
+    def within(self, what: str, fn: Callable[[], T], instead: T, why_late: str) -> T:
+        """`fn()` within the start-up time left, else `instead` (with a
+        warning: `what` skipped, `why_late` what is done instead)."""
+        try:
+            return self.startup.run(what, fn)
+        except StartupOverrun as err:
+            self.startup.skip(what, f"{err}; {why_late}")
+            return instead
+
+    def fits(self, what: str, seconds: float, why_late: str) -> bool:
+        """Whether `seconds` of start-up are left for `what` (else a warning)."""
+        if self.startup.fits(seconds):
+            return True
+        self.startup.skip(
+            what, f"less than {seconds:g} s of the start-up allowance left; {why_late}"
+        )
+        return False
+
+    def size_thts(self, sim: Simulator, settings: Settings) -> Settings:
+        """`settings` with the tree sized for the thts engine."""
+        n_values = sum(
+            int(v.size // max(1, v.shape[0])) for v in sim.initial_state(1).values.values()
+        )
+        sized, self.sizing = _sizing.size_thts(n_values, settings, self.memory)
+        self._log(settings)
+        return sized
+
+    def size_wave(self, sim: Simulator, settings: Settings) -> Settings:
+        """`settings` with the batch, candidates and tree sized for the wave engine."""
+        turn = settings.time_per_step if settings.time_per_step is not None else self.turn_seconds
+        sized, self.sizing = _sizing.size_wave(
+            sim, settings, self.memory, None if settings.iterations is not None else turn
+        )
+        self._log(settings)
+        return sized
+
+    def ids_rows(self) -> int:
+        """Rows an IDS level may step at once."""
+        return 200_000 if self.sizing is None else _sizing.ids_rows(self.sizing)
+
+    def _log(self, asked: Settings) -> None:
+        assert self.sizing is not None
+        log.info("mcts: %s: %s", self.startup.instance, _sizing.describe(self.sizing, asked))
+
+    def tree_full(self, nodes: int, turn: SearchStats, max_nodes: int) -> bool:
+        """Whether the wave engine's tree (`nodes` at the start of the turn,
+        plus the leaves the turn expanded) has reached `max_nodes`: the
+        search stops growing it (logged once a session)."""
+        if nodes + turn.leaves < max_nodes:
+            return False
+        if not self._warned_full:
+            self._warned_full = True
+            log.warning(
+                "mcts: %s: the tree holds %d nodes, as many as the memory budget allows "
+                "(max_nodes); the turn's search stops there (logged once a session)",
+                self.startup.instance,
+                nodes + turn.leaves,
+            )
+        return True
