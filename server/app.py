@@ -70,7 +70,10 @@ def open_services(
             stem = f"{stamp}-p{port}-s{session_id}-{meta.get('instance', 'unknown')}"
             return TranscriptWriter(TranscriptWriter.unique_path(folder, stem), meta)
 
-    return Services(config, registry, store=store, rddlsim_log=rlog, transcripts=transcripts)
+    services = Services(config, registry, store=store, rddlsim_log=rlog, transcripts=transcripts)
+    if live is not None:
+        live.watch_notices(services.notices)  # (the view counts refused connections)
+    return services
 
 
 def close_services(services: Services, reason: str, close: bool = True) -> None:

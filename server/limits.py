@@ -283,10 +283,14 @@ class Notices:
         self._shown: Counter[str] = Counter()
         self._hidden: Counter[str] = Counter()
         self.totals: Counter[str] = Counter()  # every notice since the start, by cause
+        # told every cause noted (the web view counts the refused connections)
+        self.watchers: list[Callable[[str], object]] = []
 
     def note(self, cause: str, detail: str, level: int = logging.WARNING) -> None:
         """One event of `cause`; `detail` is its full line."""
         self.totals[cause] += 1
+        for watch in self.watchers:
+            watch(cause)
         now = self._clock()
         if now - self._window_start >= self.interval:
             self.flush(now)

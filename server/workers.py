@@ -152,6 +152,8 @@ class WorkerPool:
 
         self.table = connection_table(config)
         self.notices = Notices(log)
+        if live is not None:
+            live.watch_notices(self.notices)  # (the view counts refused connections)
         # the shared count of open sessions: an unlinked temporary file, mapped
         self._count_file = tempfile.TemporaryFile(prefix="ippc-sessions-")
         self._count_file.write(b"\0" * _NUM.size)

@@ -40,29 +40,52 @@ def _svg(width: int, height: int, label: str, *body: str) -> Markup:
 
 
 def sparkline(
-    values: Sequence[float | None], *, width: int = 120, height: int = 28, label: str = ""
+    values: Sequence[float | None],
+    *,
+    width: int = 180,
+    height: int = 40,
+    label: str = "",
+    x_start: int = 1,
 ) -> Markup:
-    """A line of `values` (one point each, e.g. a session's round rewards)
-    with a dot at the last one; empty when there is nothing to draw."""
+    """A small line of `values` (one point each, e.g. a session's round rewards)
+    with its scale: the highest and lowest value at the left, the first and last
+    index (from `x_start`) below, and a dot at the last one; empty when there is
+    nothing to draw."""
     pts = [(i, v) for i, v in enumerate(values) if v is not None and math.isfinite(v)]
     if not pts:
         return _svg(width, height, label or "no data yet")
     lo, hi = _range([v for _, v in pts])
     n = max(len(values) - 1, 1)
-    pad = 3
+    left, right, top, bottom = 44, 4, 4, 12
+    plot_w, plot_h = width - left - right, height - top - bottom
 
     def xy(i: int, v: float) -> tuple[float, float]:
-        x = pad + (width - 2 * pad) * (i / n if len(values) > 1 else 0.5)
-        y = height - pad - (height - 2 * pad) * (v - lo) / (hi - lo)
+        x = left + plot_w * (i / n if len(values) > 1 else 0.5)
+        y = top + plot_h - plot_h * (v - lo) / (hi - lo)
         return round(x, 1), round(y, 1)
 
     coords = [xy(i, v) for i, v in pts]
     path = " ".join(f"{x},{y}" for x, y in coords)
     lx, ly = coords[-1]
+    font = 'font-family="sans-serif" font-size="9" fill="#555"'
+    base = top + plot_h
+    scale = [
+        f'<line x1="{left - 2}" x2="{left - 2}" y1="{top}" y2="{base}" stroke="#aaa"/>',
+        f'<line x1="{left - 2}" x2="{width - right}" y1="{base}" y2="{base}" stroke="#aaa"/>',
+        f'<text x="{left - 5}" y="{top + 7}" text-anchor="end" {font}>{esc(fmt_number(hi, 3))}</text>',
+        f'<text x="{left - 5}" y="{base}" text-anchor="end" {font}>{esc(fmt_number(lo, 3))}</text>',
+        f'<text x="{left}" y="{height - 1}" {font}>{x_start}</text>',
+    ]
+    if len(values) > 1:
+        scale.append(
+            f'<text x="{width - right}" y="{height - 1}" text-anchor="end" {font}>'
+            f"{x_start + len(values) - 1}</text>"
+        )
     return _svg(
         width,
         height,
         label or f"{len(pts)} values, last {fmt_number(pts[-1][1])}",
+        *scale,
         f'<polyline points="{path}" fill="none" stroke="{PALETTE[0]}" stroke-width="1.5"/>',
         f'<circle cx="{lx}" cy="{ly}" r="2.5" fill="{PALETTE[5]}"/>',
     )
