@@ -4,6 +4,7 @@ and `uniform` (a uniformly drawn legal joint action)."""
 from __future__ import annotations
 
 import logging
+import time
 from typing import ClassVar
 
 import numpy as np
@@ -12,6 +13,7 @@ from ..rddl.legal import LegalActions, solver_for
 from ..rddl.simulator import SimulationError, Simulator, State
 from ..rddl.wire import WireCodec
 from .base import Observation, Planner, PlannerError, SessionInfo, WireFluent
+from .budget import OneAtATime
 from .rddlsim_random import RandomConcurrentPolicy, Stuck
 
 log = logging.getLogger(__name__)
@@ -108,7 +110,12 @@ class UniformPlanner(Planner):
     legal. POMDPs: legality is judged in the initial state.
 
     The generator is seeded from the option `seed`, else the client's
-    `--seed`, else fresh entropy."""
+    `--seed`, else fresh entropy.
+
+    A draw runs in a worker thread until the turn's deadline: where drawing
+    a legal joint action takes longer than the turn (RecSim 2023's 125,000
+    legal joint actions), the turn sends noop, with a warning, and the late
+    draw is left to finish before the next one starts."""
 
     name: ClassVar[str] = "uniform"
     options: ClassVar[dict[str, str]] = {
@@ -121,9 +128,11 @@ class UniformPlanner(Planner):
         self._rng: np.random.Generator | None = None
         self._initial: State | None = None
         self._codec: WireCodec | None = None
+        self._draws = OneAtATime("uniform: drawing a legal joint action")
 
     def start_session(self, session: SessionInfo) -> None:
         super().start_session(session)
+        self._draws = OneAtATime("uniform: drawing a legal joint action")
         self._rng = np.random.default_rng(self.seed if self.seed is not None else session.seed)
         self._initial = session.simulator.initial_state(1)
         self._codec = WireCodec(session.simulator)
@@ -132,8 +141,22 @@ class UniformPlanner(Planner):
         if self.session is None or self._rng is None or self._initial is None:
             raise PlannerError("uniform: act() called before start_session()")
         state = obs.state if obs.state is not None else self._initial
-        assert self._codec is not None
-        return _uniform_action(self.session.simulator, self._codec, state, self._rng, "uniform")
+        codec, rng, sim = self._codec, self._rng, self.session.simulator
+        assert codec is not None
+        ok, action = self._draws.call(
+            lambda: _uniform_action(sim, codec, state, rng, "uniform"),
+            obs.deadline - time.monotonic(),
+        )
+        if not ok:
+            log.warning(
+                "uniform: turn %d: no legal joint action drawn by the turn's deadline "
+                "(%d late draws this session); sending noop",
+                obs.turn,
+                self._draws.late,
+            )
+            return []
+        assert action is not None
+        return action
 
 
 def _uniform_action(

@@ -297,3 +297,46 @@ class Startup:
         if left <= 0.0:
             raise StartupOverrun(f"no start-up time left for {what}")
         return run_within(fn, left, what)
+
+
+class OneAtATime:
+    """Runs work in a worker thread with a deadline, one piece at a time,
+    and never abandons it: a piece that is late is left to finish by itself
+    (its result dropped), and no new piece starts before it has. For work
+    on shared objects that must not be stopped half-way (a solver's caches)."""
+
+    def __init__(self, what: str) -> None:
+        self.what = what
+        self._worker: threading.Thread | None = None
+        self.late = 0
+        """Pieces that did not end in time (or could not start: one was still running)."""
+
+    def busy(self) -> bool:
+        """Whether a late piece is still running."""
+        return self._worker is not None and self._worker.is_alive()
+
+    def call(self, fn: Callable[[], T], seconds: float) -> tuple[bool, T | None]:
+        """(True, `fn()`) when it ends within `seconds`; (False, None) when it
+        does not, or when an earlier late piece is still running. An
+        exception of `fn` is raised here."""
+        if self.busy():
+            self.late += 1
+            return False, None
+        box: dict[str, object] = {}
+
+        def work() -> None:
+            try:
+                box["value"] = fn()
+            except BaseException as err:  # noqa: BLE001 - handed to the caller
+                box["error"] = err
+
+        worker = threading.Thread(target=work, name=self.what, daemon=True)
+        worker.start()
+        worker.join(max(0.0, seconds))
+        if worker.is_alive():
+            self._worker = worker
+            self.late += 1
+            return False, None
+        if "error" in box:
+            raise box["error"]  # type: ignore[misc]
+        return True, box.get("value")  # type: ignore[return-value]

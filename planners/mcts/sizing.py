@@ -70,7 +70,9 @@ def size_wave(
         by_time = int(0.25 * turn_seconds / per_row)
         batch = max(1, min(batch, by_time))
     per_leaf = settings.modes * settings.rollouts
-    max_actions = max(1, min(settings.max_actions, batch // per_leaf))
+    # at least a choice between two actions, where the memory allows it
+    least = min(settings.max_actions, 2 if rows_within(half, cost, 2 * per_leaf) > per_leaf else 1)
+    max_actions = max(least, min(settings.max_actions, batch // per_leaf))
     n_values = sum(int(np.prod(v.shape[1:])) for v in sim.initial_state(1).values.values())
     node = (
         2 * cost.state
