@@ -128,7 +128,7 @@ def print_report(report: RunReport) -> None:
     "--kb-port",
     type=int,
     default=None,
-    help="Serve the knowledge base's JSON-lines socket here (kb.*, sensing.*, handlers.*); 0 = any free port.",
+    help="Serve the knowledge base's JSON-lines socket here (kb.*, sensing.*, handlers.*); 0 = any free port. It takes the same --allow and --accept-rate, and --max-connections (default 64 for it).",
 )
 @click.option("--no-stop-at-goal", is_flag=True, help="Play every round to its horizon.")
 @click.option(

@@ -29,7 +29,7 @@ from typing import Any
 import trio
 
 from ..kb import KnowledgeBase
-from ..kb.jsonl import JsonlServer
+from ..kb.jsonl import JsonlServer, SocketLimits
 from ..kb.service import register_kb
 from ..planners.base import ExternalPlanner, Planner, PlannerError, make_planner
 from ..server.app import (
@@ -428,7 +428,7 @@ async def dispatch_session(
                 for fn, args in robot.tasks:
                     nursery.start_soon(_logged_task, fn, args)
             if kb_port is not None:
-                socket = JsonlServer("rddl-dispatch")
+                socket = JsonlServer("rddl-dispatch", kb_socket_limits(config))
                 register_kb(socket, dispatcher.kb)
                 register_dispatch(
                     socket,
@@ -518,6 +518,19 @@ async def dispatch_session(
         journaled=kb_journal.batches if kb_journal is not None else None,
         executed_total=stats.executed_total,
         goals=list(run.goals),
+    )
+
+
+def kb_socket_limits(config: ServerConfig) -> SocketLimits:
+    """The knowledge base's socket's limits: the planner's port's --allow
+    and --accept-rate, its connection caps when given (else the socket's
+    own default, 64)."""
+    default = SocketLimits()
+    return SocketLimits(
+        max_connections=config.max_connections or default.max_connections,
+        max_connections_per_address=config.max_connections_per_address,
+        allow=config.allow,
+        accept_rate=config.accept_rate,
     )
 
 

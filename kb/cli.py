@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import logging
 from pathlib import Path
 
@@ -9,7 +10,8 @@ import click
 import trio
 
 from ..rddl import RDDLError
-from .jsonl import DEFAULT_HOST
+from ..server.limits import parse_networks
+from .jsonl import DEFAULT_HOST, SocketLimits
 from .knowledge_base import KnowledgeBase
 from .service import serve_kb
 
@@ -23,10 +25,10 @@ def load(domain: Path, instance: Path) -> KnowledgeBase:
         raise click.ClickException(str(err)) from None
 
 
-async def run(kb: KnowledgeBase, host: str, port: int) -> None:
+async def run(kb: KnowledgeBase, host: str, port: int, limits: SocketLimits | None = None) -> None:
     """Serve `kb` and say where, until interrupted."""
     async with trio.open_nursery() as nursery:
-        bound = await nursery.start(serve_kb, kb, host, port)
+        bound = await nursery.start(functools.partial(serve_kb, kb, host, port, limits=limits))
         click.echo(f"listening on {host}:{bound}", nl=True)
 
 
@@ -50,6 +52,33 @@ async def run(kb: KnowledgeBase, host: str, port: int) -> None:
     show_default=True,
     help="With --pddl: what the world's own fluents do (see docs/knowledge-base.md).",
 )
+@click.option(
+    "--max-connections",
+    type=click.IntRange(min=1),
+    default=SocketLimits.max_connections,
+    show_default=True,
+    help="Open connections at most; more are refused at once.",
+)
+@click.option(
+    "--allow",
+    multiple=True,
+    metavar="CIDR",
+    help="Accept connections only from this network (repeatable); default: any address.",
+)
+@click.option(
+    "--accept-rate",
+    type=click.FloatRange(min=0),
+    default=SocketLimits.accept_rate,
+    show_default=True,
+    help="New connections a second accepted at most; 0 = no limit.",
+)
+@click.option(
+    "--max-buffered",
+    type=click.IntRange(min=1),
+    default=SocketLimits.max_buffered,
+    show_default=True,
+    help="Bytes of queued replies and unread input over all connections; past it the connection holding the most is closed.",
+)
 @click.option("-q", "--quiet", is_flag=True, help="Log warnings only.")
 def main(
     domain: Path,
@@ -59,6 +88,10 @@ def main(
     write_rddl: bool,
     pddl: str | None,
     exogenous: str,
+    max_connections: int,
+    allow: tuple[str, ...],
+    accept_rate: float,
+    max_buffered: int,
     quiet: bool,
 ) -> None:
     """Serve the knowledge base of DOMAIN and INSTANCE (RDDL files) over
@@ -66,6 +99,16 @@ def main(
     logging.basicConfig(
         level=logging.WARNING if quiet else logging.INFO,
         format="%(asctime)s %(name)s %(levelname)s %(message)s",
+    )
+    try:
+        parse_networks(allow)
+    except ValueError as err:
+        raise click.BadParameter(str(err), param_hint="--allow") from None
+    limits = SocketLimits(
+        max_connections=max_connections,
+        allow=allow,
+        accept_rate=accept_rate,
+        max_buffered=max_buffered,
     )
     kb = load(domain, instance)
     if write_rddl:
@@ -81,7 +124,7 @@ def main(
         click.echo(d + "\n" + p, nl=False)
         return
     try:
-        trio.run(run, kb, host, port)
+        trio.run(run, kb, host, port, limits)
     except KeyboardInterrupt:
         pass
 

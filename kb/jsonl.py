@@ -51,12 +51,44 @@ from typing import Any
 
 import trio
 
+from ..server.limits import AcceptPacer, BufferBudget, ConnectionTable, Notices, parse_networks
+from ..server.listener import accept_connections
+
 log = logging.getLogger(__name__)
 
 DEFAULT_HOST = "127.0.0.1"
 MAX_LINE = 1 << 20  # bytes; longer lines are refused (and skipped to their end)
 MAX_DEPTH = 32  # arrays and objects in arrays and objects; deeper requests are refused
-QUEUE_SIZE = 10_000  # lines waiting to be written to one connection
+QUEUE_SIZE = 10_000  # events a `JsonlClient` keeps unread
+# bytes of replies and events queued for one connection before it counts as
+# not reading and is closed
+MAX_QUEUED = 4 * 1024 * 1024
+# a connection's requests wait (unread, in the kernel) while this many bytes
+# of its replies are queued: a client that pipelines without reading slows
+# down to its own pace instead of filling the server's memory
+HIGH_WATER = 256 * 1024
+MAX_RUNNING = 100  # coroutine requests of one connection under way at once
+
+
+@dataclass(frozen=True)
+class SocketLimits:
+    """What a JSON-lines server allows its clients (safe by default; see
+    docs/robot.md, "Exposing the knowledge base's socket").
+
+    `max_connections` open at once (per address: `max_connections_per_address`,
+    default the same), from the networks of `allow` only (CIDR; empty: any
+    address), at most `accept_rate` new ones a second (0: no pacing);
+    `max_buffered` bytes of queued replies and events and of unread input
+    over all connections (the connection that would exceed it is closed);
+    `max_queued` such bytes for one connection."""
+
+    max_connections: int = 64
+    max_connections_per_address: int | None = None
+    allow: tuple[str, ...] = ()
+    accept_rate: float = 50.0
+    max_buffered: int = 32 * 1024 * 1024
+    max_queued: int = MAX_QUEUED
+
 
 Handler = Callable[[dict[str, Any], "Connection"], Any]
 
@@ -149,16 +181,32 @@ class Connection:
 
     _ids = itertools.count(1)
 
-    def __init__(self, peer: str, token: trio.lowlevel.TrioToken):
+    def __init__(
+        self,
+        peer: str,
+        token: trio.lowlevel.TrioToken,
+        budget: BufferBudget | None = None,
+        max_queued: int = MAX_QUEUED,
+        notices: Notices | None = None,
+    ):
         self.id = next(self._ids)
         self.peer = peer
         self.state: dict[str, Any] = {}
         self.closed = False
         self._token = token
         self._thread = threading.get_ident()
-        self._send, self._receive = trio.open_memory_channel[bytes](QUEUE_SIZE)
+        self._send, self._receive = trio.open_memory_channel[bytes](math.inf)
         self._close_callbacks: list[Callable[[Connection], None]] = []
         self._cancel = trio.CancelScope()
+        self._budget = budget
+        self._max_queued = max_queued
+        self._notices = notices
+        self.queued = 0  # bytes of replies and events not yet sent
+        self.unread = 0  # bytes received that are not yet a whole request
+        self._held = 0  # of them, drawn from the shared budget
+        self._drained = trio.Event()  # set when `queued` falls below HIGH_WATER
+        # the open connection holding the most of the budget (the server's)
+        self._biggest: Callable[[], Connection | None] | None = None
 
     def __repr__(self) -> str:
         return f"Connection({self.id}, {self.peer})"
@@ -168,8 +216,8 @@ class Connection:
         self.post({"event": event, **(fields or {})})
 
     def post(self, obj: Any) -> None:
-        """Queue one line for this client, from any thread; dropped (with a
-        log line) once the connection is closed."""
+        """Queue one line for this client, from any thread; dropped once
+        the connection is closed."""
         if self.closed:
             return
         data = encode(obj)
@@ -186,13 +234,63 @@ class Connection:
     def _put(self, data: bytes) -> None:
         if self.closed:
             return
+        if self.queued + len(data) > self._max_queued:
+            self._drop(
+                "connections closed: not reading",
+                f"{self}: not reading ({self.queued:,} bytes queued, at most "
+                f"{self._max_queued:,}): closing it",
+            )
+            return
+        self.queued += len(data)
+        if not self._charge():
+            return
         try:
             self._send.send_nowait(data)
-        except trio.WouldBlock:
-            log.warning("%s: not reading (%d lines queued): closing it", self, QUEUE_SIZE)
-            self.close()
         except (trio.BrokenResourceError, trio.ClosedResourceError):
             pass
+
+    def _sent(self, n: int) -> None:
+        self.queued -= n
+        self._charge()
+        if self.queued < HIGH_WATER:
+            self._drained.set()
+
+    def _charge(self) -> bool:
+        """Draw this connection's buffered bytes from the shared budget.
+        When the budget cannot give them, the connection that holds the
+        most of it is closed (this one, or a bigger one, which makes room);
+        False when it is this one."""
+        if self._budget is None or self.closed:
+            return not self.closed
+        while True:
+            held = self._budget.charge(self._held, self.queued + self.unread)
+            if held is not None:
+                self._held = held
+                return True
+            victim = self._biggest() if self._biggest is not None else self
+            if victim is None or victim._held <= self.queued + self.unread - self._held:
+                victim = self
+            victim._drop(
+                "connections closed: over the budget of queued replies and unread input",
+                f"{victim}: closed: it holds {victim.queued + victim.unread:,} bytes of queued "
+                f"replies and unread input, the most of the server's budget "
+                f"({self._budget.used:,} of {self._budget.limit:,} bytes in use)",
+            )
+            if victim is self:
+                return False
+
+    async def wait_drained(self) -> None:
+        """Until fewer than HIGH_WATER bytes of replies are queued."""
+        while self.queued >= HIGH_WATER and not self.closed:
+            self._drained = trio.Event()
+            await self._drained.wait()
+
+    def _drop(self, cause: str, detail: str) -> None:
+        if self._notices is not None:
+            self._notices.note(cause, detail)
+        else:
+            log.warning("%s", detail)
+        self.close()
 
     def on_close(self, callback: Callable[[Connection], None]) -> None:
         """Call `callback(connection)` when the connection ends (at once if
@@ -211,6 +309,10 @@ class Connection:
         if self.closed:
             return
         self.closed = True
+        self._drained.set()
+        if self._budget is not None:
+            self._budget.release(self._held)
+            self._held = 0
         for cb in self._close_callbacks:
             try:
                 cb(self)
@@ -222,10 +324,14 @@ class Connection:
 class JsonlServer:
     """Methods by name, served to any number of connections."""
 
-    def __init__(self, name: str = "jsonl") -> None:
+    def __init__(self, name: str = "jsonl", limits: SocketLimits | None = None) -> None:
         self.name = name
+        self.limits = limits or SocketLimits()
         self.methods: dict[str, Method] = {}
         self.connections: set[Connection] = set()
+        # warnings about clients, once per cause, then counted
+        self.notices = Notices(logging.getLogger(f"{__name__}.{name}"))
+        self.budget = BufferBudget(self.limits.max_buffered, allowance=0)
         self.register(
             "methods", self._list_methods, "the methods this server offers, with a line each"
         )
@@ -247,6 +353,10 @@ class JsonlServer:
             for m in sorted(self.methods.values(), key=lambda m: m.name)
         ]
 
+    def _biggest(self) -> Connection | None:
+        open_ = [c for c in self.connections if not c.closed]
+        return max(open_, key=lambda c: c._held, default=None)
+
     def broadcast(self, event: str, fields: dict[str, Any] | None = None) -> None:
         """Send an event to every open connection."""
         for conn in list(self.connections):
@@ -262,37 +372,55 @@ class JsonlServer:
         task_status: trio.TaskStatus[int] = trio.TASK_STATUS_IGNORED,
     ) -> None:
         """Listen on `host`:`port` (0: any free port, reported through
-        `task_status`) and serve every connection until cancelled."""
+        `task_status`) and serve every connection until cancelled, under
+        `self.limits` through the listener rddl-server's port uses
+        (`ippc.server.listener`)."""
+        limits = self.limits
+        total = max(1, limits.max_connections)
+        per = limits.max_connections_per_address or total
+        table = ConnectionTable(total, min(per, total), parse_networks(limits.allow))
         listeners = await trio.open_tcp_listeners(port, host=host)
         bound = listeners[0].socket.getsockname()[1]
         log.info("%s: listening on %s:%d", self.name, host, bound)
         async with trio.open_nursery() as nursery:
+            nursery.start_soon(self.notices.run)
+            nursery.start_soon(self.budget.run)
 
-            async def accept_loop(listener: trio.SocketListener) -> None:
-                async with listener:
-                    while True:
-                        try:
-                            stream = await listener.accept()
-                        except OSError as err:  # e.g. too many open files: wait, go on
-                            log.error("%s: accept failed: %s", self.name, err)
-                            await trio.sleep(0.1)
-                            continue
-                        nursery.start_soon(self.handle_stream, stream)
+            async def handle(stream: trio.SocketStream, key: int) -> None:
+                try:
+                    await self.handle_stream(stream)
+                finally:
+                    table.remove(key)
 
+            def take(stream: trio.SocketStream, key: int) -> bool:
+                nursery.start_soon(handle, stream, key)
+                return False
+
+            pacer = AcceptPacer(limits.accept_rate)
+            keys = itertools.count(1)
             for listener in listeners:
-                nursery.start_soon(accept_loop, listener)
+                nursery.start_soon(
+                    accept_connections, listener, self.notices, table, pacer, keys, take
+                )
             task_status.started(bound)
 
     async def handle_stream(self, stream: trio.abc.Stream) -> None:
-        """Serve one connection to its end."""
+        """Serve one connection to its end; nothing it does ends more."""
         try:
             host, cport = stream.socket.getpeername()[:2]  # type: ignore[attr-defined]
             peer = f"{host}:{cport}"
         except (AttributeError, OSError):
             peer = "?"
-        conn = Connection(peer, trio.lowlevel.current_trio_token())
+        conn = Connection(
+            peer,
+            trio.lowlevel.current_trio_token(),
+            budget=self.budget,
+            max_queued=self.limits.max_queued,
+            notices=self.notices,
+        )
+        conn._biggest = self._biggest
         self.connections.add(conn)
-        log.info("%s: %s connected", self.name, conn)
+        log.debug("%s: %s connected", self.name, conn)
         try:
             with conn._cancel:
                 async with stream, trio.open_nursery() as nursery:
@@ -310,13 +438,14 @@ class JsonlServer:
         finally:
             self.connections.discard(conn)
             conn._finish()
-            log.info("%s: %s closed", self.name, conn)
+            log.debug("%s: %s closed", self.name, conn)
 
     async def _writer(self, conn: Connection, stream: trio.abc.Stream) -> None:
         try:
             async with conn._receive:
                 async for data in conn._receive:
                     await stream.send_all(data)
+                    conn._sent(len(data))
         except (trio.BrokenResourceError, trio.ClosedResourceError, OSError) as err:
             # the client reset the connection (or closed it with replies
             # unread): this connection ends, nothing else does
@@ -328,6 +457,7 @@ class JsonlServer:
     ) -> None:
         buf = bytearray()
         skipping = False  # inside a line that was too long
+        running = trio.Semaphore(MAX_RUNNING)  # coroutine requests under way
         while True:
             try:
                 data = await stream.receive_some(65536)
@@ -337,10 +467,13 @@ class JsonlServer:
                 return
             if not data:
                 if buf.strip() and not skipping:
-                    await self._line(conn, bytes(buf), nursery)
+                    await self._line(conn, bytes(buf), nursery, running)
                 return
             buf += data
             while True:
+                conn.unread = len(buf)
+                if not conn._charge():
+                    return
                 nl = buf.find(b"\n")
                 if nl < 0:
                     if len(buf) > MAX_LINE and not skipping:
@@ -352,6 +485,8 @@ class JsonlServer:
                         skipping = True
                     if skipping:
                         buf.clear()
+                        conn.unread = 0
+                        conn._charge()
                     break
                 line = bytes(buf[:nl])
                 del buf[: nl + 1]
@@ -364,9 +499,17 @@ class JsonlServer:
                     )
                     continue
                 if line.strip():
-                    await self._line(conn, line, nursery)
+                    # a client that does not read its replies waits here
+                    # (its requests stay in the kernel) instead of queueing more
+                    await conn.wait_drained()
+                    await self._line(conn, line, nursery, running)
+                    # a fair turn: the other connections' requests (and the
+                    # dispatcher) run between two of this one's
+                    await trio.lowlevel.checkpoint()
 
-    async def _line(self, conn: Connection, line: bytes, nursery: trio.Nursery) -> None:
+    async def _line(
+        self, conn: Connection, line: bytes, nursery: trio.Nursery, running: trio.Semaphore
+    ) -> None:
         if too_deep(line, MAX_DEPTH):
             conn.post(
                 error_reply(
@@ -408,18 +551,26 @@ class JsonlServer:
             conn.post(error_reply(rid, "bad-params", f"'{name}': params must be a JSON object"))
             return
         if method.is_async:
-            nursery.start_soon(self._run_async, conn, method, rid, params)
+            await running.acquire()  # at most MAX_RUNNING at once; the next waits
+            nursery.start_soon(self._run_async, conn, method, rid, params, running)
         else:
             conn.post(self._outcome(rid, name, lambda: method.handler(params, conn)))
 
     async def _run_async(
-        self, conn: Connection, method: Method, rid: Any, params: dict[str, Any]
+        self,
+        conn: Connection,
+        method: Method,
+        rid: Any,
+        params: dict[str, Any],
+        running: trio.Semaphore,
     ) -> None:
         try:
             result = await method.handler(params, conn)
         except Exception as err:
             conn.post(self._error(rid, method.name, err))
             return
+        finally:
+            running.release()
         conn.post(self._reply(rid, method.name, result))
 
     def _outcome(self, rid: Any, name: str, call: Callable[[], Any]) -> dict[str, Any]:

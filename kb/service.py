@@ -17,7 +17,7 @@ from typing import Any
 import trio
 
 from .goal import Goal
-from .jsonl import DEFAULT_HOST, Connection, JsonlServer, RequestError
+from .jsonl import DEFAULT_HOST, Connection, JsonlServer, RequestError, SocketLimits
 from .knowledge_base import KnowledgeBase
 from .store import Change, Update
 
@@ -354,10 +354,11 @@ async def serve_kb(
     port: int = 0,
     *,
     server: JsonlServer | None = None,
+    limits: SocketLimits | None = None,
     task_status: trio.TaskStatus[int] = trio.TASK_STATUS_IGNORED,
 ) -> None:
-    """Serve `kb` (on `server`, or a new one) until cancelled; the bound port
-    is reported through `task_status`."""
-    server = server or JsonlServer("kb")
+    """Serve `kb` (on `server`, or a new one with `limits`) until cancelled;
+    the bound port is reported through `task_status`."""
+    server = server or JsonlServer("kb", limits)
     register_kb(server, kb)
     await server.serve(host, port, task_status=task_status)

@@ -25,10 +25,9 @@ from .limits import (
     LISTEN_BACKLOG,
     AcceptPacer,
     ConnectionTable,
-    closed_already,
     parse_networks,
-    peer_host,
 )
+from .listener import accept_connections as listen
 from .session import Services, Session
 
 log = logging.getLogger(__name__)
@@ -151,50 +150,18 @@ async def accept_connections(
     keys: Iterator[int],
     take: Callable[[trio.SocketStream, int], bool],
 ) -> None:
-    """Accept connections on `listener` until cancelled, under the limits:
-    at most `pacer`'s rate, refused at once (closed, counted in
-    `svc.notices`) when `table` refuses their address or is full, counted
-    and closed when the peer closed before it was accepted. Each connection
-    let in is added to `table` under a key from `keys` and handed to
-    `take(stream, key)`, which must remove the key from the table when the
-    connection ends; `take` returns True to stop accepting. (rddl-server's
-    listener and rddl-dispatch's.)"""
-    async with listener:
-        while True:
-            await pacer.pace()
-            # (one accept per pass of the scheduler: a flood of new
-            # connections waits in the kernel's backlog while the
-            # sessions in progress take their turns)
-            try:
-                stream = await listener.accept()
-            except OSError as err:  # e.g. too many open files: wait, go on
-                svc.notices.note(
-                    f"accept failures: {err.strerror or err}",
-                    f"accept failed: {err}",
-                    logging.ERROR,
-                )
-                await trio.sleep(0.1)
-                continue
-            host = peer_host(stream.socket)
-            refused = table.refusal(host)
-            if refused is not None:
-                svc.notices.note(*refused)
-                stream.socket.close()
-                continue
-            if closed_already(stream.socket):
-                # numbered all the same, as rddlsim numbers it
-                sid = svc.new_session_id()
-                svc.notices.note(
-                    EMPTY_CLOSE,
-                    f"session {sid} ({host}): the client closed the connection"
-                    " before its session-request",
-                )
-                stream.socket.close()
-                continue
-            key = next(keys)
-            table.add(key, host)
-            if take(stream, key):
-                return
+    """`server.listener.accept_connections` with `svc`'s notices; a
+    connection closed before its session-request is numbered as rddlsim
+    numbers it, and counted. (rddl-server's listener and rddl-dispatch's.)"""
+
+    def empty(host: str) -> None:
+        sid = svc.new_session_id()
+        svc.notices.note(
+            EMPTY_CLOSE,
+            f"session {sid} ({host}): the client closed the connection before its session-request",
+        )
+
+    await listen(listener, svc.notices, table, pacer, keys, take, empty)
 
 
 def connection_table(config: ServerConfig) -> ConnectionTable:

@@ -47,3 +47,15 @@ async def test_resets_and_deep_nesting_do_not_end_the_run() -> None:
     assert report.goal_reached
     assert b'"too-deep"' in b"".join(replies)
     assert [e["action"] for e in report.executed][-1] == "drop(r1)"
+
+
+def test_the_kb_socket_takes_the_planner_ports_allow_and_rate() -> None:
+    from ippc.dispatch.run import kb_socket_limits, server_config
+
+    limits = kb_socket_limits(server_config(allow=("10.0.0.0/8",), accept_rate=7.0))
+    assert (limits.allow, limits.accept_rate, limits.max_connections) == (
+        ("10.0.0.0/8",),
+        7.0,
+        64,
+    )
+    assert kb_socket_limits(server_config(max_connections=5)).max_connections == 5

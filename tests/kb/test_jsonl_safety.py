@@ -193,3 +193,122 @@ def test_rddl_kb_survives_a_reset_and_deep_nesting() -> None:
     finally:
         proc.terminate()
         proc.wait(timeout=10)
+
+
+# ------------------------------------------------ the listener's limits
+
+
+async def closed_by_server(stream: trio.SocketStream) -> bool:
+    """Whether the server closes `stream` (reads to its end, bounded)."""
+    with trio.move_on_after(5):
+        try:
+            while await stream.receive_some(65536):
+                pass
+        except trio.BrokenResourceError:
+            pass
+        return True
+    return False
+
+
+@pytest.mark.trio
+async def test_the_connection_cap_and_allow_come_from_the_listener() -> None:
+    from ippc.kb.jsonl import SocketLimits
+
+    with trio.fail_after(TIMEOUT):
+        capped = big_server()
+        capped.limits = SocketLimits(max_connections=2, accept_rate=0)
+        async with running(capped) as port, connect(port) as one, connect(port) as two:
+            assert await one.call("test.echo", {"n": 1}) == {"n": 1}
+            third = await raw_connect(port)
+            assert await closed_by_server(third)
+            assert await two.call("test.echo", {"n": 2}) == {"n": 2}
+            assert capped.notices.totals == {
+                "connections refused: cap of 2 open connections reached": 1
+            }
+        elsewhere = big_server()
+        elsewhere.limits = SocketLimits(allow=("10.0.0.0/8",))
+        async with running(elsewhere) as port:
+            stream = await raw_connect(port)
+            assert await closed_by_server(stream)
+            assert list(elsewhere.notices.totals) == ["connections refused: address not in --allow"]
+
+
+@pytest.mark.trio
+async def test_the_total_budget_closes_the_clients_that_do_not_read() -> None:
+    from ippc.kb.jsonl import SocketLimits
+
+    server = JsonlServer("test")
+    limit = 4 << 20
+    server.limits = SocketLimits(max_buffered=limit, max_queued=1 << 30, accept_rate=0)
+    server.budget.limit = limit
+    peak = [0]
+
+    async def spam(params: dict[str, Any], conn: Connection) -> Any:
+        chunk = "e" * 65536
+        for _ in range(params["n"]):
+            server.broadcast("test.spam", {"data": chunk})
+            peak[0] = max(peak[0], server.budget.used)
+            await trio.sleep(0.002)  # (a pace the good client, in this loop too, keeps up with)
+        return len(server.connections)
+
+    server.register("test.spam", spam)
+    with trio.fail_after(TIMEOUT):
+        async with running(server) as port, trio.open_nursery() as nursery:
+            silent = [await raw_connect(port) for _ in range(3)]
+            async with connect(port) as good:
+                seen = [0]
+
+                async def drain() -> None:
+                    while True:
+                        event = await good.next_event()
+                        assert event["event"] == "test.spam"
+                        seen[0] += 1
+
+                nursery.start_soon(drain)
+                left = await good.call("test.spam", {"n": 400})
+                assert left == 1  # the good client alone
+                assert peak[0] <= limit
+                for stream in silent:
+                    assert await closed_by_server(stream)
+                assert await good.call("methods") is not None
+                nursery.cancel_scope.cancel()
+            counts = server.notices.totals
+            assert counts == {
+                "connections closed: over the budget of queued replies and unread input": 3
+            }
+
+
+@pytest.mark.trio
+async def test_a_pipelining_client_does_not_stall_another() -> None:
+    server = JsonlServer("test")
+    handled: list[str] = []
+
+    def count(params: dict[str, Any], conn: Connection) -> Any:
+        handled.append(params["who"])
+        return len(handled)
+
+    server.register("test.count", count)
+    with trio.fail_after(TIMEOUT):
+        async with running(server) as port, connect(port) as good:
+            assert await good.call("test.count", {"who": "good"}) == 1
+            pipe = await raw_connect(port)
+            lines = b"".join(
+                b'{"id": %d, "method": "test.count", "params": {"who": "pipe"}}\n' % i
+                for i in range(3000)
+            )
+            async with trio.open_nursery() as nursery:
+                nursery.start_soon(pipe.send_all, lines)
+
+                async def read_all() -> None:
+                    got = b""
+                    while got.count(b"\n") < 3000:
+                        got += await pipe.receive_some(65536)
+
+                nursery.start_soon(read_all)
+                while "pipe" not in handled:
+                    await trio.sleep(0)
+                n = await good.call("test.count", {"who": "good"})
+            # the good request took its turn among the pipelined ones
+            assert handled.count("pipe") == 3000
+            assert handled.index("good", 1) < 1 + 200, handled.index("good", 1)
+            assert n == handled.index("good", 1) + 1
