@@ -94,7 +94,10 @@ def _row_keys(arrays: list[Array], n: int) -> list[bytes]:
     """One bytes key per batch row of these arrays (their raw contents)."""
     if not arrays:
         return [b""] * n
-    parts = [np.ascontiguousarray(a).reshape(n, -1).view(np.uint8) for a in arrays]
+    # (the width spelled out: numpy cannot infer -1 for an empty batch)
+    parts = [
+        np.ascontiguousarray(a).reshape(n, int(np.prod(a.shape[1:]))).view(np.uint8) for a in arrays
+    ]
     packed = np.concatenate(parts, axis=1) if len(parts) > 1 else parts[0]
     width = packed.shape[1]
     blob = np.ascontiguousarray(packed).tobytes()

@@ -148,7 +148,11 @@ def _stack(states: Sequence[State]) -> State:
 
 def _row_bytes(values: Mapping[str, Array], n: int) -> Array:
     """The raw bytes of every row of a batch, as an (n, width) uint8 array."""
-    parts = [np.ascontiguousarray(v).reshape(n, -1).view(np.uint8) for v in values.values()]
+    # (the width spelled out: numpy cannot infer -1 for an empty batch)
+    parts = [
+        np.ascontiguousarray(v).reshape(n, int(np.prod(v.shape[1:]))).view(np.uint8)
+        for v in values.values()
+    ]
     if not parts:
         return np.zeros((n, 0), dtype=np.uint8)
     return np.concatenate(parts, axis=1) if len(parts) > 1 else parts[0]
@@ -248,7 +252,7 @@ class IDS:
         out = np.ones(n, dtype=bool)
         for k, d in self._noop.items():
             a = np.asarray(actions[k])
-            out &= (a.reshape(n, -1) == d.reshape(1, -1)).all(axis=1)
+            out &= (a.reshape(n, int(np.prod(a.shape[1:]))) == d.reshape(1, -1)).all(axis=1)
         return out
 
     def _expand(
