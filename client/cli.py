@@ -5,12 +5,15 @@ from __future__ import annotations
 import json
 import logging
 import sys
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import click
 import trio
 
 from ..planners.base import ExternalPlanner, PlannerError, find_planner, make_planner
+from .guard import default_memory_budget, run_guarded
 from .session import ClientConfig, ClientError, SessionResult, run_session
 
 
@@ -88,6 +91,28 @@ def parse_planner_options(pairs: tuple[str, ...]) -> dict[str, str]:
     default=None,
     help="PROST's search binary (else $PROST_BIN).",
 )
+@click.option(
+    "--memory-budget",
+    "memory_mb",
+    type=click.FloatRange(min=1),
+    default=None,
+    metavar="MB",
+    help="Resident memory the planner's process may hold before it is killed "
+    "(default: 80% of the memory available at start).",
+)
+@click.option(
+    "--grace",
+    type=click.FloatRange(min=0),
+    default=30.0,
+    show_default=True,
+    metavar="SECONDS",
+    help="How long the planner may play past the session's budget before its process is stopped.",
+)
+@click.option(
+    "--in-process",
+    is_flag=True,
+    help="Run a built-in planner in this process (no time or memory limit holds then).",
+)
 @click.option("-q", "--quiet", is_flag=True)
 def main(
     host: str,
@@ -103,10 +128,17 @@ def main(
     json_out: Path | None,
     timeout: float,
     prost_bin: Path | None,
+    memory_mb: float | None,
+    grace: float,
+    in_process: bool,
     quiet: bool,
 ) -> None:
     """Play one session of INSTANCE on an IPPC server (ours, rddlsim, or a
-    robot's dispatcher) with a planner, and print the round rewards."""
+    robot's dispatcher) with a planner, and print the round rewards.
+
+    A built-in planner plays in a child process that is stopped once the session's
+    budget (from session-init) plus --grace has passed, or killed over --memory-budget:
+    the exit status is 1 with the reason."""
     logging.basicConfig(
         level=logging.WARNING if quiet else logging.INFO,
         format="%(levelname)s %(name)s: %(message)s",
@@ -141,7 +173,9 @@ def main(
         )
         for i, r in enumerate(res.rounds, 1):
             click.echo(f"round {i:3d}  reward {r:12.4f}")
-        click.echo(f"total reward {res.total_reward}  ({res.seconds:.1f} s, log {res.log_path})")
+        click.echo(
+            f"total reward {res.total_reward:.4f}  ({res.seconds:.1f} s, log {res.log_path})"
+        )
         if json_out is not None:
             rounds = [
                 {"round": i, "reward": r, "turns": None, "seconds": None, "training": False}
@@ -173,15 +207,88 @@ def main(
         seed=seed,
         timeout=timeout,
     )
-    try:
-        result = trio.run(run_session, config, agent, planner)
-    except ClientError as err:
-        raise click.ClickException(str(err)) from None
-    except PlannerError as err:
-        raise click.ClickException(f"planner {planner}: {err}") from None
+    if in_process:
+        try:
+            result = trio.run(run_session, config, agent, planner)
+        except ClientError as err:
+            raise click.ClickException(str(err)) from None
+        except PlannerError as err:
+            raise click.ClickException(f"planner {planner}: {err}") from None
+    else:
+        del agent  # made again in the child: the options are checked
+        result = play_guarded(
+            config,
+            planner,
+            options,
+            memory_mb=memory_mb if memory_mb is not None else default_memory_budget(),
+            grace=grace,
+            log_level=logging.WARNING if quiet else logging.INFO,
+        )
     print_result(result)
     if json_out is not None:
         json_out.write_text(json.dumps(result.as_dict(), indent=2) + "\n")
+
+
+def play_guarded(
+    config: ClientConfig,
+    planner: str,
+    options: dict[str, str],
+    *,
+    memory_mb: float | None,
+    grace: float,
+    log_level: int = logging.INFO,
+) -> SessionResult:
+    """`run_session` with a new `planner` in a child process (`client.guard`): stopped
+    once the session's budget plus `grace` has passed since session-init (before it,
+    the client's own timeout plus `grace`), killed over `memory_mb`; a
+    `click.ClickException` says why."""
+    budget: list[float] = []
+
+    def heard(msg: Any) -> float | None:
+        if msg[0] == "init":
+            budget.append(msg[1])
+            return float(msg[1]) + grace
+        return None
+
+    out = run_guarded(
+        "ippc.client.cli:_session_in_child",
+        (config, planner, options),
+        seconds=(config.timeout or 600.0) + grace,
+        memory_mb=memory_mb,
+        on_message=heard,
+        log_level=log_level,
+    )
+    if out.status == "ok":
+        if isinstance(out.value, str):
+            raise click.ClickException(out.value)
+        result: SessionResult = out.value
+        return result
+    if out.status == "timeout" and budget:
+        raise click.ClickException(
+            f"planner {planner}: still playing {out.seconds:.1f} s after session-init, past "
+            f"the session's budget of {budget[0]:g} s plus {grace:g} s grace; its process "
+            "was stopped"
+        )
+    if out.status == "timeout":
+        raise click.ClickException(
+            f"no session-init {out.seconds:.1f} s after we started (--timeout "
+            f"{config.timeout:g} plus {grace:g} s grace); stopped"
+        )
+    raise click.ClickException(f"planner {planner}: {out.reason}")
+
+
+def _session_in_child(
+    arg: tuple[ClientConfig, str, dict[str, str]], send: Callable[[Any], None]
+) -> SessionResult | str:
+    """The guard's child: make the planner and play; a user-facing error as text."""
+    config, planner, options = arg
+    try:
+        agent = make_planner(planner, options)
+        return trio.run(run_session, config, agent, planner, lambda s: send(("init", s)))
+    except ClientError as err:
+        return str(err)
+    except PlannerError as err:
+        return f"planner {planner}: {err}"
 
 
 def print_result(result: SessionResult) -> None:
@@ -193,5 +300,6 @@ def print_result(result: SessionResult) -> None:
         mark = "  training" if r.training else ("  (ended early)" if r.ended_early else "")
         click.echo(f"{r.round:>5}  {r.reward:>12.4f}  {r.turns:>5}  {r.seconds:>8.3f}{mark}")
     click.echo(
-        f"total reward {result.total_reward}  mean round reward {result.mean_round_reward:.4f}  ({result.seconds:.2f} s)"
+        f"total reward {result.total_reward:.4f}  mean round reward "
+        f"{result.mean_round_reward:.4f}  ({result.seconds:.2f} s)"
     )

@@ -167,6 +167,7 @@ def run_guarded(
     log_path: Path | None = None,
     cancel: threading.Event | None = None,
     poll: float = 0.1,
+    log_level: int = logging.INFO,
 ) -> GuardOutcome:
     """Call ``module:function`` (`target`) as ``function(arg, send)`` in a child Python
     process and wait for it, at most `seconds` (a message's `on_message` may set a new
@@ -174,18 +175,19 @@ def run_guarded(
 
     ``send(obj)`` in the child hands a picklable object to `on_message` here; the
     function's return value comes back as the outcome's value. The child's stdout and
-    stderr go to `log_path` (appended), else nowhere. Never raises for what the child
-    does; KeyboardInterrupt here ends the child before it propagates."""
+    stderr go to `log_path` (appended), else to our stderr; it logs at `log_level`.
+    Never raises for what the child does; KeyboardInterrupt here ends the child before
+    it propagates."""
     t0 = time.monotonic()
     deadline = t0 + seconds
     rfd, wfd = os.pipe()
-    out: IO[bytes] | int = subprocess.DEVNULL
+    out: IO[bytes] | int = 2  # our stderr
     if log_path is not None:
         log_path.parent.mkdir(parents=True, exist_ok=True)
         out = open(log_path, "ab")  # noqa: SIM115 - closed below
     try:
         proc = subprocess.Popen(
-            [sys.executable, "-m", "ippc.client.guard", str(wfd)],
+            [sys.executable, "-m", "ippc.client.guard", str(wfd), str(log_level)],
             stdin=subprocess.PIPE,
             stdout=out,
             stderr=subprocess.STDOUT,
@@ -320,6 +322,8 @@ def _child(fd: int) -> int:
 
 if __name__ == "__main__":
     logging.basicConfig(
-        level=logging.INFO, format="%(levelname)s %(name)s: %(message)s", stream=sys.stderr
+        level=int(sys.argv[2]) if len(sys.argv) > 2 else logging.INFO,
+        format="%(levelname)s %(name)s: %(message)s",
+        stream=sys.stderr,
     )
     raise SystemExit(_child(int(sys.argv[1])))

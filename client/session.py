@@ -14,7 +14,7 @@ import os
 import statistics
 import tempfile
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -180,9 +180,14 @@ def _typed(
 
 
 async def run_session(
-    config: ClientConfig, planner: Planner, planner_name: str = ""
+    config: ClientConfig,
+    planner: Planner,
+    planner_name: str = "",
+    on_init: Callable[[float], None] | None = None,
 ) -> SessionResult:
-    """Connect, play every round with `planner`, return the results."""
+    """Connect, play every round with `planner`, return the results. `on_init` hears
+    the session's budget in seconds as soon as session-init arrives (before the
+    planner starts)."""
     started = time.monotonic()
     try:
         with trio.fail_after(config.timeout or 60.0):
@@ -201,6 +206,8 @@ async def run_session(
         init = await link.receive("session-init")
         if not isinstance(init, SessionInit):
             raise ClientError(f"expected session-init, got {type(init).__name__}")
+        if on_init is not None:  # loading and compiling the model is the session's time
+            on_init(init.time_allowed / 1000.0)
         if config.rddl:
             try:
                 model = load_model(*config.rddl, instance=config.instance)
