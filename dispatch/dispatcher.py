@@ -511,8 +511,11 @@ class DispatchEpisode(Episode):
         if contradictions:
             record["contradictions"] = contradictions
             stats.contradictions += len(contradictions)
-        if goal and d.stop_at_goal:
+        if goal:
+            # reached, whether the run stops there or goes on (--no-stop-at-goal):
+            # the report and the web page say so alike
             stats.goal_reached = True
+        if goal and d.stop_at_goal:
             return Outcome(
                 reward, end="terminal", stop=True, record=record, execution_seconds=seconds
             )
