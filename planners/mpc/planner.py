@@ -31,7 +31,7 @@ from .space import ActionSpace, Samples
 
 log = logging.getLogger(__name__)
 
-ITERATIONS = 3  # rounds of sampling a turn should have time for
+ITERATIONS = 5  # rounds of refitting a turn should have time for
 MIN_SAMPLES = 8  # fewer and the horizon is shortened instead
 KEPT = 4  # best sequences of a turn offered again in the next one
 # bytes a state or an action takes inside a step, per byte it takes at rest
@@ -51,6 +51,8 @@ class MPCPlanner(Planner):
         "time_per_step": "seconds a turn may take (default: the client's share of the session)",
         "memory_mb": "megabytes the sampled sequences and their states may take (default 256)",
         "seed": "integer seed (default: the client's --seed, else unseeded)",
+        "iterations": "rounds of refitting a turn, whatever the clock says (default: as many "
+        "as time allows; for tests and reproducible runs)",
     }
 
     def __init__(self, **options: str) -> None:
@@ -64,8 +66,10 @@ class MPCPlanner(Planner):
         self.time_per_step = self.float_option("time_per_step", None, minimum=0.0)
         self.memory = int((self.float_option("memory_mb", 256.0, minimum=1.0) or 256.0) * 2**20)
         self.seed = self.int_option("seed")
+        self.iterations = self.int_option("iterations", None, minimum=1)
         self.stats: dict[str, int] = {}
-        """Counts of the session: turns, late turns, refits, illegal samples, fallbacks."""
+        """Counts of the session: turns, late turns, refits, repaired and illegal sampled
+        steps, fallbacks."""
         self._plan: Plan | None = None
         self._kept: Samples | None = None
         self._last: Samples | None = None
@@ -88,34 +92,65 @@ class MPCPlanner(Planner):
             state_bytes + action_bytes
         )
         self.cap = max(1, min(self.samples, self.memory // max(1, self.per_sample)))
-        self.stats = dict.fromkeys(("turns", "late", "refits", "illegal", "fallbacks"), 0)
+        self.stats = dict.fromkeys(
+            ("turns", "late", "refits", "repaired", "illegal", "fallbacks"), 0
+        )
         self._measure()
 
     def _measure(self) -> None:
-        """The cost of a simulator call: `fixed` + `each` x batch (compiling
-        the step for both batch sizes on the way)."""
+        """The first batch size: what `ITERATIONS` rounds of a full horizon in
+        the expected turn time allow, by the cost of a simulator call
+        (`fixed` + `each` x batch, the fastest of three at 2 and at 32
+        states, compiling the step for both sizes on the way). Later turns
+        correct it by the rounds they managed (`_adapt`)."""
         sim = self.session.simulator if self.session else None
         assert sim is not None
         self.fixed, self.each = 1e-4, 1e-6
+        sizes = (2, min(self.cap, 32)) if self.cap > 2 else (2,)
+        cost = {}
         try:
-            cost = {}
-            for n in (2, min(self.cap, 16)) if self.cap > 2 else (2,):
+            for n in sizes:
                 states = self.initial[np.zeros(n, dtype=np.int64)]
-                sim.step(states, sim.noop(n), self.rng, check=False)  # compiles
-                t0 = time.perf_counter()
-                sim.step(states, sim.noop(n), self.rng, check=False)
-                cost[n] = time.perf_counter() - t0
+                noop = sim.noop(n)
+                sim.step(states, noop, self.rng, check=False)  # compiles
+                times = []
+                for _ in range(3):
+                    t0 = time.perf_counter()
+                    sim.step(states, noop, self.rng, check=False)
+                    times.append(time.perf_counter() - t0)
+                cost[n] = min(times)
         except SimulationError as err:
             log.info("mpc: noop cannot be simulated from the initial state (%s)", err)
-            return
         if len(cost) == 2:
             (n1, c1), (n2, c2) = sorted(cost.items())
             self.each = max((c2 - c1) / (n2 - n1), 1e-7)
             self.fixed = max(c1 - n1 * self.each, 1e-5)
-        else:
-            self.fixed = max(cost[2] / 2, 1e-5)
-            self.each = self.fixed
-        log.debug("mpc: a call costs %.2g s + %.2g s a state", self.fixed, self.each)
+        elif cost:
+            self.fixed = self.each = max(cost[2] / 2, 1e-5)
+        session = self.session
+        assert session is not None
+        turns = max(1, session.rounds * (session.model.horizon or 100))
+        turn = self.time_per_step or 0.9 * session.time_allowed / turns
+        n, self.h_limit = self._size(self.horizon, turn)
+        self.n = max(n, min(MIN_SAMPLES, self.cap))
+        log.debug(
+            "mpc: a call costs %.2g s + %.2g s a state; %d samples", self.fixed, self.each, self.n
+        )
+
+    def _adapt(self, rounds: int) -> None:
+        """Fewer samples (then a shorter horizon) after a turn that managed
+        fewer than `ITERATIONS` rounds of refitting; more after one that
+        managed twice as many."""
+        if rounds < ITERATIONS:
+            if self.n > MIN_SAMPLES:
+                self.n = max(MIN_SAMPLES, int(self.n * max(0.5, rounds / ITERATIONS)))
+            else:
+                self.h_limit = max(1, int(self.h_limit * 0.7))
+        elif rounds >= 2 * ITERATIONS:
+            if self.h_limit < self.horizon:
+                self.h_limit = min(self.horizon, self.h_limit + max(1, self.h_limit // 2))
+            else:
+                self.n = min(self.cap, max(self.n + 1, int(self.n * 1.5)))
 
     def start_round(self, round_num: int) -> None:
         self._plan = None
@@ -158,8 +193,12 @@ class MPCPlanner(Planner):
         return n, min(h, self.horizon, steps_left)
 
     def _search(self, state: State, steps_left: int, stop: float) -> Samples | None:
-        """Refine the plan until `stop`; the best evaluated sequence."""
-        n, h = self._size(steps_left, stop - time.monotonic())
+        """Refine the plan until `stop` (or `iterations` times); the best
+        evaluated sequence."""
+        if self.iterations is not None:
+            n, h, stop = self.cap, max(1, min(self.horizon, steps_left)), math.inf
+        else:
+            n, h = self.n, max(1, min(self.h_limit, steps_left))
         sim = self.session.simulator  # type: ignore[union-attr]
         if self._plan is None:
             self._plan = Plan(self.space, h)
@@ -173,7 +212,9 @@ class MPCPlanner(Planner):
             return None
         clock = Clock(stop, self.fixed + self.each * n)
         discount = self.session.model.discount  # type: ignore[union-attr]
-        while True:
+        rounds = refits = 0
+        while self.iterations is None or rounds < self.iterations:
+            rounds += 1
             t_sample = time.monotonic()
             samples = self._plan.sample(n, self.rng, kept)
             t0 = time.monotonic()
@@ -188,10 +229,12 @@ class MPCPlanner(Planner):
                 break
             self._learn_cost(n, (time.monotonic() - t0) / max(1, got.calls))
             self.stats["illegal"] += got.illegal
+            self.stats["repaired"] += got.repaired
             returns = got.returns
             t_refit = time.monotonic()
             self._plan.refit(samples, returns, self.method)
             self.stats["refits"] += 1
+            refits += 1
             clock.reserve = max(0.8 * clock.reserve, time.monotonic() - t_refit + t0 - t_sample)
             order = np.argsort(-returns, kind="stable")[:KEPT]
             order = order[np.isfinite(returns[order])]
@@ -200,6 +243,8 @@ class MPCPlanner(Planner):
                 best_return = float(returns[order[0]])
                 best = samples.take(int(order[0]))
         self._kept = _shifted(kept) if kept is not None else None
+        if self.iterations is None:
+            self._adapt(refits)
         return best
 
     def _learn_cost(self, n: int, per_call: float) -> None:

@@ -28,10 +28,11 @@ from .space import ActionSpace, Samples
 Array = np.ndarray
 
 ELITE = 0.1  # cem: the fraction of samples refitted to
-TEMPERATURE = 0.5  # mppi: weights exp((R - max R) / (TEMPERATURE * std R))
+TEMPERATURE = 0.1  # mppi: weights exp((R - max R) / (TEMPERATURE * std R))
 SMOOTHING = 0.8  # how far a refit moves the plan
 MIN_STD = 0.01  # of a bounded number's range (or of its initial spread)
 KEEP = 0.5  # how much of the learnt spread a shift keeps
+GROWTH = 2.0  # the spread of an unbounded number that moved by more than it
 
 METHODS = ("cem", "mppi")
 
@@ -51,6 +52,7 @@ class Plan:
         self.init_mean = np.clip(space.number_default, lo, hi)
         self.init_std = np.where(finite, span / 4.0, scale)
         self.min_std = MIN_STD * self.init_std
+        self.unbounded = ~finite
         self.init_prob = np.full(space.n_flags, 0.5)
         self.init_probs = [
             np.full((ch.groups, ch.options), 1.0 / ch.options) for ch in space.choices
@@ -114,8 +116,13 @@ class Plan:
         wn = w[:, None, None]
         mean = (wn * samples.numbers).sum(axis=0)
         var = (wn * (samples.numbers - mean) ** 2).sum(axis=0)
+        moved = np.abs(mean - self.mean) > 0.5 * self.std
+        std = np.maximum(a * np.sqrt(var) + (1 - a) * self.std, self.min_std)
+        # an unbounded number whose best samples lie a spread away: its scale
+        # was guessed too small, so the spread grows instead of shrinking
+        grow = moved & self.unbounded
+        self.std = np.where(grow, GROWTH * self.std, std)
         self.mean = a * mean + (1 - a) * self.mean
-        self.std = np.maximum(a * np.sqrt(var) + (1 - a) * self.std, self.min_std)
         self.prob = a * (wn * samples.flags).sum(axis=0) + (1 - a) * self.prob
         for i, (drawn, p) in enumerate(zip(samples.choices, self.probs, strict=True)):
             n, h, g = drawn.shape
@@ -161,7 +168,8 @@ class Evaluation:
     """What evaluating a batch of sequences found."""
 
     returns: Array  # (n,): discounted return over the plan's steps; -inf where illegal
-    illegal: int  # sequences with an action the constraints forbid
+    illegal: int  # sequences with an action the constraints forbid, even repaired
+    repaired: int  # sampled steps that broke a checked precondition and were repaired
     calls: int  # simulator calls made
 
 
@@ -184,6 +192,7 @@ def evaluate(
     total = np.zeros(n)
     alive = np.ones(n, dtype=bool)
     legal = np.ones(n, dtype=bool)
+    repaired = 0
     scale = 1.0
     calls = 0
     for t in range(h):
@@ -193,26 +202,73 @@ def evaluate(
         if check:
             ok = sim.check_actions(states, acts)
             if not ok.all():
-                # an illegal sequence is never a candidate; it plays noop on
-                # so that the batch stays one call
+                repaired += int((~ok).sum())
+                acts, ok = repair(sim, space, states, samples, t, ok)
                 legal &= ok
-                noop = sim.noop(1)
-                for name, arr in acts.items():
-                    arr[~ok] = noop[name][0]
         try:
             step = sim.step(states, acts, rng, check=False)
         except (SimulationError, FloatingPointError, ValueError) as err:
             raise EvaluationFailed(str(err)) from err
         calls += 1
-        reward = np.nan_to_num(step.reward, nan=-np.inf)
-        total += np.where(alive, scale * reward, 0.0)
+        reward = step.reward
+        total += np.where(alive, scale * np.where(reward == reward, reward, -np.inf), 0.0)
         alive &= ~step.done
         scale *= discount
         states = step.next_state
         if not alive.any():
             break
     total[~legal] = -np.inf
-    return Evaluation(total, int((~legal).sum()), calls)
+    return Evaluation(total, int((~legal).sum()), repaired, calls)
+
+
+REPAIR_HALVINGS = 6  # bisection steps of a repair: within 1/64 of the way
+
+
+def repair(
+    sim: Simulator, space: ActionSpace, states: State, samples: Samples, t: int, ok: Array
+) -> tuple[dict[str, Array], Array]:
+    """Step `t` of the sequences that break a checked precondition (`~ok`),
+    repaired in place: their numbers moved back towards their defaults,
+    as little as bisection finds legal; where that is not enough, the whole
+    step set to noop; where noop is illegal too, left as it is and
+    reported (the returned mask is False there, and the caller plays noop
+    in that row so that the batch stays one call)."""
+    bad = np.flatnonzero(~ok)
+    sub = states[bad]
+    x = samples.numbers[bad, t].copy()
+    d = np.broadcast_to(space.number_default, x.shape)
+    fixed = np.zeros(len(bad), dtype=bool)
+    if space.n_numbers:
+        lo, hi = np.zeros(len(bad)), np.ones(len(bad))
+        for _ in range(REPAIR_HALVINGS):
+            mid = (lo + hi) / 2
+            samples.numbers[bad, t] = _towards(space, d, x, mid)
+            good = sim.check_actions(sub, space.actions(samples.take(bad), t))
+            lo = np.where(good, mid, lo)
+            hi = np.where(good, hi, mid)
+        samples.numbers[bad, t] = _towards(space, d, x, lo)
+        fixed = sim.check_actions(sub, space.actions(samples.take(bad), t))
+    rest = bad[~fixed]
+    if len(rest):
+        noop = space.noop(len(rest), 1)
+        samples.numbers[rest, t] = noop.numbers[:, 0]
+        samples.flags[rest, t] = noop.flags[:, 0]
+        for c, nc in zip(samples.choices, noop.choices, strict=True):
+            c[rest, t] = nc[:, 0]
+    acts = space.actions(samples, t)
+    ok = ok.copy()
+    ok[bad] = True
+    if len(rest):
+        ok[rest] = sim.check_actions(states[rest], space.actions(samples.take(rest), t))
+    return acts, ok
+
+
+def _towards(space: ActionSpace, d: Array, x: Array, share: Array) -> Array:
+    """d + share * (x - d), ints rounded towards d (a step back stays legal)."""
+    out = d + share[:, None] * (x - d)
+    if space.integral.any():
+        out[:, space.integral] = (d + np.trunc(out - d))[:, space.integral]
+    return out
 
 
 class EvaluationFailed(Exception):
