@@ -230,7 +230,7 @@ class Simulator:
             if a is None:
                 continue
             diff = np.asarray(a) != self._defaults[p.name]
-            n += diff.reshape(diff.shape[0], -1).sum(axis=1)
+            n += diff.reshape(diff.shape[0], int(np.prod(diff.shape[1:]))).sum(axis=1)
         return n
 
     def check_actions(self, state: State, actions: Mapping[str, Array]) -> Array:
