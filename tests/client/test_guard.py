@@ -1,0 +1,195 @@
+"""Budgets that hold whatever a planner does: `ippc.client.guard` on its own, and
+rddl-client with a planner plug-in whose start-up never returns and one that allocates
+without bound, against a real rddl-server whose session budget is 3 s."""
+
+from __future__ import annotations
+
+import re
+import select
+import signal
+import subprocess
+import sys
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+from ippc.client.guard import default_memory_budget, memory_available_mb, run_guarded
+from ippc.planners.base import find_planner
+from ippc.server.store import ResultStore
+
+from . import runaway
+from .loopback import DOMAINS
+
+CLIENT = Path(sys.executable).parent / "rddl-client"
+BUDGET_MB = 300.0
+
+
+@pytest.fixture
+def plugins(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> dict[str, str]:
+    return runaway.register(monkeypatch, tmp_path / "plugins")
+
+
+def test_a_child_returns_its_value_and_its_messages(plugins: dict[str, str]) -> None:
+    heard: list[Any] = []
+    out = run_guarded(
+        "ippc_runaway_planners:echo",
+        [1, "two"],
+        seconds=60,
+        memory_mb=None,
+        on_message=lambda m: heard.append(m),
+    )
+    assert (out.status, out.value, out.reason) == ("ok", {"got": [1, "two"]}, None)
+    assert heard == [("note", [1, "two"])]
+    assert out.peak_mb > 0
+
+
+def test_a_child_that_raises_fails_with_its_words(plugins: dict[str, str]) -> None:
+    out = run_guarded("ippc_runaway_planners:fail", "input", seconds=60, memory_mb=None)
+    assert (out.status, out.reason) == ("failed", "ValueError: bad input")
+
+
+def test_a_message_sets_the_limit_and_the_child_is_stopped_at_it(
+    plugins: dict[str, str], tmp_path: Path
+) -> None:
+    # 600 s at first; the child's message says 1 s from then
+    out = run_guarded(
+        "ippc_runaway_planners:wait_forever",
+        1.0,
+        seconds=600,
+        memory_mb=None,
+        on_message=lambda m: m[1] if m[0] == "budget" else None,
+        log_path=tmp_path / "child.log",
+    )
+    assert out.status == "timeout"
+    assert re.fullmatch(r"still running after \d+\.\d s, past its time limit; stopped", out.reason)
+    assert out.seconds < 600
+
+
+def test_a_child_over_its_memory_budget_is_killed(plugins: dict[str, str]) -> None:
+    out = run_guarded("ippc_runaway_planners:allocate", None, seconds=120, memory_mb=BUDGET_MB)
+    assert out.status == "memory"
+    assert re.fullmatch(
+        r"out of memory: the planner's process held \d+ MB, over its budget of 300 MB; killed",
+        out.reason,
+    )
+    assert BUDGET_MB < out.peak_mb < 4096
+
+
+def test_a_cancel_stops_the_child() -> None:
+    import threading
+
+    cancel = threading.Event()
+    cancel.set()
+    out = run_guarded("time:sleep", 5, seconds=60, memory_mb=None, cancel=cancel)
+    assert out.status == "interrupted"
+
+
+def test_the_default_budget_is_a_share_of_the_memory_available() -> None:
+    avail = memory_available_mb()
+    assert avail is not None and avail > 0
+    budget = default_memory_budget(4)
+    assert budget is not None and 0 < budget <= 0.8 * avail / 4 * 1.1
+
+
+def test_the_plugins_are_registered(plugins: dict[str, str]) -> None:
+    assert find_planner("stuck").name == "stuck" and find_planner("hog").name == "hog"
+
+
+# ----------------------------------------------------------------- rddl-client
+
+
+@pytest.fixture
+def server(tmp_path: Path) -> Iterator[tuple[int, Path]]:
+    """`rddl-server domains/ --timeout 3 --rounds 2` in a subprocess: (port, its db)."""
+    db = tmp_path / "server.sqlite"
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-c",
+            "from ippc.server.cli import main; main()",
+            str(DOMAINS),
+            "--port",
+            "0",
+            "--rounds",
+            "2",
+            "--timeout",
+            "3",
+            "--db",
+            str(db),
+            "-q",
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.DEVNULL,
+        text=True,
+    )
+    try:
+        assert proc.stdout is not None
+        ready, _, _ = select.select([proc.stdout], [], [], 60)
+        line = proc.stdout.readline() if ready else ""
+        m = re.match(r"listening on 127\.0\.0\.1:(\d+)$", line.strip())
+        assert m, f"the server did not start: {line!r}"
+        yield int(m.group(1)), db
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        try:
+            proc.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait(timeout=10)
+
+
+def client(port: int, env: dict[str, str], *args: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [
+            str(CLIENT),
+            "--port",
+            str(port),
+            "--instance",
+            "corridor_enum_inst_1",
+            "--timeout",
+            "600",
+            "-q",
+            *args,
+        ],
+        capture_output=True,
+        text=True,
+        timeout=120,  # the client's own limits end it long before
+        env=env,
+    )
+
+
+@pytest.mark.alone
+def test_rddl_client_stops_a_planner_whose_start_up_never_returns(
+    server: tuple[int, Path], plugins: dict[str, str]
+) -> None:
+    port, db = server
+    done = client(port, plugins, "--planner", "stuck", "--grace", "1")
+    assert done.returncode == 1, done.stderr
+    assert re.fullmatch(
+        r"Error: planner stuck: still playing \d+\.\d s after session-init, past the "
+        r"session's budget of 3 s plus 1 s grace; its process was stopped\n",
+        done.stderr,
+    ), done.stderr
+    # the server goes on: the next client plays its session
+    done = client(port, plugins, "--planner", "noop", "--name", "after")
+    assert done.returncode == 0, done.stderr
+    assert "total reward -30.0000  mean round reward -15.0000" in done.stdout, done.stdout
+    with ResultStore(db) as store:
+        assert [s["status"] for s in store.sessions() if s["client_name"] == "after"] == [
+            "finished"
+        ]
+
+
+@pytest.mark.alone
+def test_rddl_client_kills_a_planner_over_its_memory_budget(
+    server: tuple[int, Path], plugins: dict[str, str]
+) -> None:
+    port, _ = server
+    done = client(port, plugins, "--planner", "hog", "--memory-budget", "300")
+    assert done.returncode == 1, done.stderr
+    assert re.fullmatch(
+        r"Error: planner hog: out of memory: the planner's process held \d+ MB, over its "
+        r"budget of 300 MB; killed\n",
+        done.stderr,
+    ), done.stderr
