@@ -30,13 +30,14 @@ from __future__ import annotations
 import logging
 import threading
 import time
-from collections import deque
+from collections import Counter, deque
 from collections.abc import Callable
 from typing import Any
 
 from ..kb import KnowledgeBase
 from ..kb.store import Change
 from ..web.pages import Listeners
+from .actions import Handlers
 from .dispatcher import Dispatcher
 
 __all__ = ["DispatchLive", "EventCallback"]
@@ -87,6 +88,10 @@ class DispatchLive:
             "thinking": False,
         }
         self._running: dict[int, dict[str, Any]] = {}
+        # every row the actions table ever had, counted: ("action" | "noop", status)
+        self._counts: Counter[tuple[str, str]] = Counter()
+        self._order = 0  # the rows' order (a dispatch's id, or a refused action's turn)
+        self._reached: dict[str, Any] = {"turn": None, "version": None}
         self._ended: deque[dict[str, Any]] = deque(maxlen=KEPT)
         self._turns: deque[dict[str, Any]] = deque(maxlen=KEPT)
         self._notes: deque[dict[str, Any]] = deque(maxlen=KEPT)
@@ -160,7 +165,7 @@ class DispatchLive:
         if holds != self._goal["holds"]:
             with self._lock:
                 self._goal["holds"] = holds
-                events = [self._event("goal", goal=dict(self._goal))]
+                events = [self._event("goal", goal=self._goal_view())]
             self._emit(events)
 
     def _goal_now(self) -> dict[str, Any]:
@@ -180,9 +185,16 @@ class DispatchLive:
     def _on_goal(self, goal: Any, source: str) -> None:
         now = self._goal_now()
         with self._lock:
+            if now.get("version") != self._goal.get("version"):
+                self._reached = {"turn": None, "version": None}  # a new goal
             self._goal = now
-            events = [self._event("goal", goal=dict(now), source=source)]
+            events = [self._event("goal", goal=self._goal_view(), source=source)]
         self._emit(events)
+
+    def _goal_view(self) -> dict[str, Any]:
+        """Under the lock: the goal, whether it holds now, and the turn after which it
+        first held (the run's outcome: `DispatchStats.goal_reached`)."""
+        return {**self._goal, "reached_turn": self._reached["turn"]}
 
     def _on_dispatcher(self, kind: str, data: dict[str, Any]) -> None:
         stats = self.d.stats
@@ -199,7 +211,8 @@ class DispatchLive:
                 for running in list(self._running.values()):
                     ended = {**running, "status": "interrupted", "message": "the session closed"}
                     self._ended.append(ended)
-                    events.append(self._event("action", action=ended))
+                    self._counts[(ended["kind"], "interrupted")] += 1
+                    events.append(self._event("action", action=ended, counts=self._count_view()))
                 self._running.clear()
             elif kind == "round":
                 s.update(round=data["round"])
@@ -221,6 +234,29 @@ class DispatchLive:
                     "goal": data.get("goal"),
                 }
                 self._turns.append(turn)
+                for k, a in enumerate(data.get("actions", [])):
+                    if a.get("outcome") != "precondition-false":
+                        continue
+                    # never dispatched (no handler saw it): a row of the table all the same
+                    self._order += 1
+                    entry = {
+                        "id": f"{turn['turn']}.{k}",
+                        "order": self._order,
+                        "kind": "action",
+                        "turn": turn["turn"],
+                        "action": a.get("action"),
+                        "status": "precondition-false",
+                        "message": a.get("message") or "",
+                        "duration": 0.0,
+                        "started_at": None,
+                        "ended_at": self._now(),
+                    }
+                    self._ended.append(entry)
+                    self._counts[("action", "precondition-false")] += 1
+                    events.append(self._event("action", action=entry, counts=self._count_view()))
+                if data.get("goal") and self._reached["turn"] is None:
+                    self._reached = {"turn": turn["turn"], "version": self._goal.get("version")}
+                    events.append(self._event("goal", goal=self._goal_view()))
                 for a in failed:
                     text = f"turn {turn['turn']}: {a.get('action')} {a.get('outcome')}"
                     if a.get("message"):
@@ -244,21 +280,57 @@ class DispatchLive:
         self._emit(events)
 
     def _on_action(self, kind: str, data: dict[str, Any]) -> None:
+        # a noop dispatched on a turn without an action (the dispatcher's, not the planner's)
+        what = "noop" if data.get("action") == f"{Handlers.NOOP}()" else "action"
         with self._lock:
             if kind == "action-started":
-                entry = {**data, "status": "running", "started_at": self._now()}
+                self._order += 1
+                entry = {
+                    **data,
+                    "order": self._order,
+                    "kind": what,
+                    "status": "running",
+                    "started_at": self._now(),
+                }
                 self._running[data["id"]] = entry
             else:
                 start = self._running.pop(data["id"], None)
+                if start is None:
+                    self._order += 1
                 entry = {
                     **data,
+                    "order": start["order"] if start else self._order,
+                    "kind": what,
                     "started_at": start["started_at"] if start else None,
                     "ended_at": self._now(),
                     "timeout": start.get("timeout") if start else None,
                 }
                 self._ended.append(entry)
-            events = [self._event("action", action=dict(entry))]
+                self._counts[(what, str(data.get("status")))] += 1
+            events = [self._event("action", action=dict(entry), counts=self._count_view())]
         self._emit(events)
+
+    def _count_view(self) -> dict[str, Any]:
+        """Under the lock: the actions table's rows, counted (every row it ever had)."""
+        ended = {k: v for k, v in self._counts.items() if k[0] == "action"}
+        planner = sum(ended.values()) + sum(
+            1 for a in self._running.values() if a["kind"] == "action"
+        )
+        return {
+            # the planner's actions: dispatched or refused (`DispatchStats.executed_total`
+            # once their turn is over)
+            "actions": planner,
+            "running": len(self._running),
+            "succeeded": ended.get(("action", "succeeded"), 0),
+            # of them, those that ended otherwise (`DispatchStats.failed_actions`)
+            "not_succeeded": sum(n for (_, st), n in ended.items() if st != "succeeded"),
+            "by_status": {st: n for (_, st), n in sorted(ended.items())},
+            "noop": sum(n for (k, _), n in self._counts.items() if k == "noop")
+            + sum(1 for a in self._running.values() if a["kind"] == "noop"),
+            "noop_not_succeeded": sum(
+                n for (k, st), n in self._counts.items() if k == "noop" and st != "succeeded"
+            ),
+        }
 
     def tick(self) -> None:
         """Tell sensing's counts when they moved since the last tick."""
@@ -324,7 +396,8 @@ class DispatchLive:
                     }
                     for f in facts
                 ],
-                "goal": dict(self._goal),
+                "goal": self._goal_view(),
+                "counts": self._count_view(),
                 "session": dict(self._session),
                 "running": [dict(a) for a in self._running.values()],
                 "ended": [dict(a) for a in self._ended][-50:],

@@ -145,6 +145,26 @@ def _goal_text(g: Mapping[str, Any]) -> str:
     return f"{facts}: {holds}"
 
 
+def _reached_text(g: Mapping[str, Any]) -> str:
+    """The run's outcome so far (as its report says it: goal reached or not)."""
+    turn = g.get("reached_turn")
+    return "not reached yet" if turn is None else f"goal reached (it held after turn {turn})"
+
+
+def _counts_fields(c: Mapping[str, Any]) -> dict[str, Any]:
+    """The actions' counts, as the Actions table's rows (every one it ever had)."""
+    ended = ", ".join(f"{n} {st}" for st, n in c["by_status"].items())
+    running = f", {c['running']} running" if c["running"] else ""
+    noop = f"{c['noop']} noop dispatched on turns without an action"
+    if c["noop_not_succeeded"]:
+        noop += f" ({c['noop_not_succeeded']} did not succeed)"
+    return {
+        "actions": f"{c['actions']} ({ended or 'none ended yet'}{running})",
+        "not-succeeded": c["not_succeeded"],
+        "noop": noop,
+    }
+
+
 def _sensing_fields(s: Mapping[str, Any] | None) -> dict[str, Any]:
     if s is None:
         return {"sensing": "no sensing", "sensing-error": ""}
@@ -161,8 +181,6 @@ def _stats_fields(st: Mapping[str, Any]) -> dict[str, Any]:
         "turns": st["turns"],
         "rounds": st["rounds"],
         "replans": st["replans"],
-        "failed": st["failed_actions"],
-        "executed": st["executed"],
         "contradictions": st["contradictions"],
     }
 
@@ -173,6 +191,8 @@ def _fields(snap: Mapping[str, Any]) -> dict[str, Any]:
         "domain": snap["domain"],
         "session": _session_text(snap["session"]),
         "goal": _goal_text(snap["goal"]),
+        "reached": _reached_text(snap["goal"]),
+        **_counts_fields(snap["counts"]),
         "handlers": ", ".join(snap["handlers"]) or "none",
         "chart": snap["stats"]["turns"],
         **_stats_fields(snap["stats"]),
@@ -183,7 +203,7 @@ def _fields(snap: Mapping[str, Any]) -> dict[str, Any]:
 def _rows(snap: Mapping[str, Any]) -> dict[str, Sequence[tuple[str, Mapping[str, Any]]]]:
     now = snap["time"]
     actions = list(snap["ended"])[-ACTIONS_SHOWN:] + list(snap["running"])
-    actions.sort(key=lambda a: a["id"])
+    actions.sort(key=lambda a: a.get("order", 0))
     return {
         "facts": [(f["key"], _fact_cells(f, f["changed"])) for f in snap["facts"]],
         "actions": [(str(a["id"]), _action_cells(a, now)) for a in actions],
@@ -225,11 +245,15 @@ class _Translator:
         if kind == "session":
             return [fields_event({"session": _session_text(event["session"])})]
         if kind == "goal":
-            return [fields_event({"goal": _goal_text(event["goal"])})]
+            goal = event["goal"]
+            return [fields_event({"goal": _goal_text(goal), "reached": _reached_text(goal)})]
         if kind == "action":
             a = event["action"]
             cells = _action_cells(a, event["time"])
-            return [rows_event([("actions", str(a["id"]), cells)])]
+            return [
+                rows_event([("actions", str(a["id"]), cells)]),
+                fields_event(_counts_fields(event["counts"])),
+            ]
         if kind == "turn":
             st = event["stats"]
             session = _session_text(event["session"])
@@ -272,11 +296,13 @@ def _index(live: DispatchLive) -> str:
         _stat("domain", "domain", f["domain"]),
         _stat("session", "session", f["session"]),
         _stat("goal", "goal", f["goal"]),
+        _stat("the run's goal", "reached", f["reached"]),
         _stat("reward so far", "reward", f["reward"]),
         _stat("turns", "turns", f["turns"]),
         _stat("rounds", "rounds", f["rounds"]),
-        _stat("actions dispatched", "executed", f["executed"]),
-        _stat("actions that did not succeed", "failed", f["failed"]),
+        _stat("the planner's actions", "actions", f["actions"]),
+        _stat("of them, not succeeded", "not-succeeded", f["not-succeeded"]),
+        _stat("noop turns", "noop", f["noop"]),
         _stat("replans", "replans", f["replans"]),
         _stat("contradictions", "contradictions", f["contradictions"]),
         _stat("sensing", "sensing", f["sensing"]),
@@ -295,6 +321,13 @@ def _index(live: DispatchLive) -> str:
         "rddl-dispatch",
         summary,
         h("h2", "Actions"),
+        h(
+            "p",
+            "Every action the planner sent (dispatched to its handler, or refused as its"
+            " precondition was false) and every noop dispatched on a turn without one;"
+            f" the counts above are of every row, the table keeps the last {ACTIONS_SHOWN}.",
+            class_="muted",
+        ),
         live_table(
             "actions", ACTION_COLUMNS, rows["actions"], limit=ACTIONS_SHOWN, newest_first=True
         ),
