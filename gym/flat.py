@@ -13,9 +13,11 @@ first that applies):
   constraints) read no state fluent, so that the legal joint actions are the
   same in every state: they are enumerated once, by `ippc.rddl.legal` (its
   constraint solver, with max-nondef-actions as a budget of non-default
-  values), in its order, and the space applies only where that enumeration is
-  exact and has at most `max_actions` members (4096 by default). Every index
-  is then legal in every state.
+  values), and the space applies only where that enumeration is exact and has
+  at most `max_actions` members (4096 by default). Every index is then legal
+  in every state. Noop comes first (where it is legal); the others follow by
+  their number of non-default values, then by which keys (in the Dict's
+  order) they set and to what.
 * "multibinary": `MultiBinary(n)`, one bit per action grounding, where every
   action fluent is a bool.
 * "box": `Box(low, high, (n,), float32)`, one entry per action grounding:
@@ -144,6 +146,7 @@ class FlatSpaces:
         if self.size == 0:
             return "no joint action is legal"
         noop = sim.noop(1)
+        columns: list[tuple[str, np.ndarray, int]] = []
         for f in inst.act_codec.fluents:
             if f.p.name not in arrays:
                 continue
@@ -151,7 +154,15 @@ class FlatSpaces:
             default = np.asarray(noop[f.p.name]).reshape(-1).astype(np.int64)
             for j, key in enumerate(f.keys):
                 if (values[:, j] != default[j]).any():
-                    self.table[key] = values[:, j].copy()
+                    columns.append((key, values[:, j], int(default[j])))
+        # a fixed order, whatever the solver's: noop first, then by the number of
+        # non-default values, then by which keys (in the Dict's order) and their values
+        changed = [
+            tuple((c, int(v[r])) for c, (_, v, d) in enumerate(columns) if v[r] != d)
+            for r in range(self.size)
+        ]
+        order = sorted(range(self.size), key=lambda r: (len(changed[r]), changed[r]))
+        self.table = {key: v[order].copy() for key, v, _ in columns}
         return ""
 
     size: int = 0

@@ -17,11 +17,10 @@ def test_sysadmin_is_noop_or_one_reboot() -> None:
     env = FlatRDDLEnv("SysAdmin_MDP_ippc2011", "1")
     assert env.action_space == gymnasium.spaces.Discrete(11)
     assert env.flat.kind == "discrete" and env.flat.why_not_discrete == ""
-    # noop first, then each single reboot once (max-nondef-actions = 1)
+    # noop first, then each single reboot in key order (max-nondef-actions = 1)
     assert env.flat.action(0) == {f"reboot___c{i}": 0 for i in range(1, 11)}
-    rebooted = [sorted(k for k, v in env.flat.action(i).items() if v) for i in range(1, 11)]
-    assert sorted(r[0] for r in rebooted) == sorted(f"reboot___c{i}" for i in range(1, 11))
-    assert all(len(r) == 1 for r in rebooted)
+    for i in range(1, 11):
+        assert [k for k, v in env.flat.action(i).items() if v] == [f"reboot___c{i}"]
     assert env.observation_space.shape == (10,) and env.observation_space.dtype == np.float32
 
 
@@ -48,9 +47,16 @@ def test_every_combination_within_max_nondef() -> None:
     # Traffic 2014: four bool actions, max-nondef-actions 4: all 16 subsets
     env = FlatRDDLEnv("Traffic_MDP_ippc2014", "1")
     assert env.action_space == gymnasium.spaces.Discrete(16)
-    rows = {tuple(sorted(env.flat.action(i).items())) for i in range(16)}
-    assert len(rows) == 16
-    assert all(v == 0 for v in env.flat.action(0).values())
+    # noop, the four singles, the six pairs, the four triples, all four; in key order
+    keys = list(env.env.action_space.spaces)
+    on = [tuple(keys.index(k) for k, v in env.flat.action(i).items() if v) for i in range(16)]
+    assert on == [(), (0,), (1,), (2,), (3,), (0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3)] + [
+        (0, 1, 2),
+        (0, 1, 3),
+        (0, 2, 3),
+        (1, 2, 3),
+        (0, 1, 2, 3),
+    ]
     assert env.action_masks().tolist() == [True] * 16
 
 
