@@ -59,6 +59,10 @@ __all__ = [
 
 log = logging.getLogger(__name__)
 
+#: Seconds a job's process may take to start, load and check its instance before its
+#: session begins (on top of the session's limit): the batch's own work, not the planner's.
+LOAD_ALLOWANCE = 300.0
+
 #: Seconds a session may run past its budget before the job is stopped from outside
 #: (the server ends a session at its budget; this catches a client that hangs).
 HARD_LIMIT_GRACE = 60.0
@@ -314,7 +318,7 @@ def play_job(
     out = run_guarded(
         "ippc.batch.jobs:_job_in_child",
         job,
-        seconds=limit,
+        seconds=limit + LOAD_ALLOWANCE,
         memory_mb=memory,
         on_message=heard,
         log_path=log_path,
@@ -334,7 +338,7 @@ def play_job(
         else:
             why = (
                 f"no session had begun {out.seconds:.0f} s after the job started (loading the "
-                f"instance: limit {limit:g} s); stopped"
+                f"instance: limit {limit + LOAD_ALLOWANCE:g} s); stopped"
             )
         return JobResult(job.key, "timeout", why, started, ended)
     if out.status == "interrupted":
