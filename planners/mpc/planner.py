@@ -88,10 +88,24 @@ class MPCPlanner(Planner):
             log.info("mpc: %s is not satisfied by construction; samples are checked", text)
         state_bytes = sum(v.nbytes for v in self.initial.values.values())
         action_bytes = sum(v.nbytes for v in sim.noop(1).values())
-        self.per_sample = self.horizon * self.space.bytes_per_step() + STEP_OVERHEAD * (
-            state_bytes + action_bytes
-        )
-        self.cap = max(1, min(self.samples, self.memory // max(1, self.per_sample)))
+        step = self.space.bytes_per_step()
+        plan = self.space.plan_bytes_per_step()
+        fixed = STEP_OVERHEAD * (state_bytes + action_bytes)
+        # a horizon short enough that the plan and MIN_SAMPLES sequences fit
+        fits = (self.memory - MIN_SAMPLES * fixed) // max(1, MIN_SAMPLES * step + plan)
+        if fits < self.horizon:
+            log.warning(
+                "mpc: %s: a step of the plan and its samples takes %d bytes; memory_mb allows "
+                "a horizon of %d (asked %d)",
+                session.instance,
+                MIN_SAMPLES * step + plan,
+                max(1, fits),
+                self.horizon,
+            )
+            self.horizon = max(1, int(fits))
+        self.per_sample = self.horizon * step + fixed
+        left = self.memory - self.horizon * plan
+        self.cap = max(1, min(self.samples, left // max(1, self.per_sample)))
         self.stats = dict.fromkeys(
             ("turns", "late", "refits", "repaired", "illegal", "fallbacks"), 0
         )

@@ -166,6 +166,10 @@ class ActionSpace:
         acts = sum(v.nbytes for v in self._defaults.values())
         return 8 * 3 * self.n_numbers + 9 * self.n_flags + cats + acts
 
+    def plan_bytes_per_step(self) -> int:
+        """Bytes one step of a plan takes (its means, spreads, probabilities)."""
+        return 8 * (3 * self.n_numbers + self.n_flags + sum(ch.groups * ch.options for ch in self.choices))
+
     # -- values --------------------------------------------------------
 
     def clip(self, numbers: Array) -> Array:
