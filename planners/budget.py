@@ -340,3 +340,34 @@ class OneAtATime:
         if "error" in box:
             raise box["error"]  # type: ignore[misc]
         return True, box.get("value")  # type: ignore[return-value]
+
+
+TURN_MARGIN = 0.5
+"""Seconds a turn may run past its deadline before `guarded_turn` sends
+noop instead, or the turn's own time when that is longer (stated in
+docs/planners-budgets.md)."""
+
+
+def guarded_turn(
+    runner: OneAtATime, who: str, turn: int, deadline: float, fn: Callable[[], list[T]]
+) -> list[T]:
+    """`fn()` (a turn's actions) if it ends by `deadline` (or now, when that
+    has passed) plus a margin (`TURN_MARGIN`, or the turn's own time when
+    that is longer), else noop (`[]`) with a warning; the late turn finishes in the
+    background, and the turns meanwhile send noop too (`OneAtATime`)."""
+    left = max(0.0, deadline - time.monotonic())
+    margin = max(TURN_MARGIN, left)
+    ok, actions = runner.call(fn, left + margin)
+    if ok:
+        assert actions is not None
+        return actions
+    log.log(
+        logging.WARNING if runner.late == 1 else logging.DEBUG,
+        "%s: turn %d: no action by the turn's deadline (plus %.2f s); sending noop while the "
+        "late search finishes (%d late turns this session; logged once)",
+        who,
+        turn,
+        margin,
+        runner.late,
+    )
+    return []

@@ -23,6 +23,7 @@ from ...rddl.sim.scalar import ScalarStep, ScalarUnsupported
 from ...rddl.simulator import SimulationError, Simulator, State
 from ...rddl.wire import WireCodec, WireError
 from ..base import Observation, Planner, PlannerError, SessionInfo, WireFluent
+from ..budget import guarded_turn
 from .actions import ActionChooser, ActionLibrary, _row_keys
 from .ctree import TREE_C, attach
 from .deadline import Deadline
@@ -324,6 +325,16 @@ class MCTSPlanner(Planner):
     # -- a turn --------------------------------------------------------
 
     def act(self, obs: Observation) -> list[WireFluent]:
+        # a turn of the wave engine in a worker thread: one that runs past its
+        # deadline (a slow root expansion) sends noop and finishes in the background
+        if self.settings.iterations is not None or self.budgets is None or self.engine != "wave":
+            return self._act(obs)
+        deadline = obs.deadline
+        if self.settings.time_per_step is not None:
+            deadline = min(time.monotonic() + self.settings.time_per_step, obs.deadline)
+        return guarded_turn(self.budgets.turns, "mcts", obs.turn, deadline, lambda: self._act(obs))
+
+    def _act(self, obs: Observation) -> list[WireFluent]:
         if (
             self._sim is None
             or self._chooser is None

@@ -31,6 +31,7 @@ from ...rddl.simulator import Simulator
 from ..base import Planner, SessionInfo
 from ..budget import (
     DEFAULT_STARTUP,
+    OneAtATime,
     Startup,
     StartupOverrun,
     memory_budget,
@@ -62,6 +63,8 @@ class Budgets:
         )
         self.memory = memory_budget(mib)
         self.sizing: _sizing.Sizing | None = None
+        self.turns = OneAtATime("mcts: a turn")
+        """The session's turns, each in a worker thread (`budget.guarded_turn`)."""
         self._warned_full = False
         # a turn's expected seconds, for the wave engine's batch: the option,
         # else the session's time spread over its steps

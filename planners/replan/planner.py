@@ -20,8 +20,10 @@ from ..base import Observation, Planner, PlannerError, SessionInfo, WireFluent
 from ..budget import (
     DEFAULT_STARTUP,
     MEMORY_HELP,
+    OneAtATime,
     count_within,
     describe_bytes,
+    guarded_turn,
     memory_budget,
     rows_within,
     state_bytes,
@@ -103,6 +105,7 @@ class ReplanPlanner(Planner):
         self.memory_mib = self.float_option("memory", None, minimum=1.0)
         self._building: threading.Thread | None = None
         self._built: dict[str, object] = {}  # the background start's problem or error
+        self._turns = OneAtATime("replan: a turn")
         # counters over the planner's life
         self.searches = 0
         self.replans = 0
@@ -122,6 +125,7 @@ class ReplanPlanner(Planner):
     def start_session(self, session: SessionInfo) -> None:
         super().start_session(session)
         self.problem = None
+        self._turns = OneAtATime("replan: a turn")
         self._codec = WireCodec(session.simulator)
         built: dict[str, object] = {}
 
@@ -298,6 +302,15 @@ class ReplanPlanner(Planner):
     def act(self, obs: Observation) -> list[WireFluent]:
         if self.session is None or self._codec is None:
             raise PlannerError("replan: act() called before start_session()")
+        # the turn in a worker thread: one that runs past its deadline (a slow
+        # first expansion) sends noop and finishes in the background
+        deadline = obs.deadline
+        if self.time_per_step is not None:
+            deadline = min(deadline, time.monotonic() + self.time_per_step)
+        return guarded_turn(self._turns, "replan", obs.turn, deadline, lambda: self._act(obs))
+
+    def _act(self, obs: Observation) -> list[WireFluent]:
+        assert self.session is not None and self._codec is not None
         if not self._ready():
             log.warning(
                 "replan: turn %d: the determinised search is still being built; noop", obs.turn
