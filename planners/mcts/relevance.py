@@ -128,7 +128,11 @@ class _Folder:
             test = self.deps(node.test)
             if isinstance(test, _Const):
                 return self.deps(node.body if test.value else node.orelse)
-            return _union(test, self.deps(node.body), self.deps(node.orelse))
+            body, orelse = self.deps(node.body), self.deps(node.orelse)
+            if isinstance(body, _Const) and isinstance(orelse, _Const):
+                if type(body.value) is type(orelse.value) and body.value == orelse.value:
+                    return body  # either way the same
+            return _union(test, body, orelse)
         if isinstance(node, ast.BoolOp):
             is_and = isinstance(node.op, ast.And)
             parts: list[_Const | frozenset[str]] = []
@@ -627,9 +631,6 @@ def useless_actions(
                 int(x[1:]) for x in nxt_reads if _STATE.match(x) and int(x[1:]) not in relevant
             )
         grown = done_reads & useless
-        # a constraint not proven to allow a useless grounding at its default
-        # keeps every grounding it reads (see the module docstring)
-        grown |= _kept_by(parts, useless, defaults, boolean) - useful
         for i in relevant:
             grown |= reads[i] & useless
         low = _Intervals(defs, fixed, ns, boolean)
@@ -643,7 +644,13 @@ def useless_actions(
             if not gain <= 0:
                 grown |= mentioned
         if not grown:
-            break
+            # a constraint not proven to allow a useless grounding at its
+            # default keeps every grounding it reads (see the module
+            # docstring); asked once the rest is settled, so that a grounding
+            # useful for its own sake does not count as left out
+            grown = _kept_by(parts, useless, defaults, boolean) & useless
+            if not grown:
+                break
         useful |= grown
     keys = fast.action_keys
     return [keys[int(a[1:])] for a in sorted(candidates - useful, key=lambda x: int(x[1:]))]
