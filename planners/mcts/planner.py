@@ -113,14 +113,7 @@ class MCTSPlanner(Planner):
         if scalar is None:
             self.settings = self._chooser.settings = budgets.size_wave(sim, self._asked)
             self._warm_up(sim, self.settings.batch)
-            ids, locks = budgets.within(
-                "IDS (its joint actions and its learning phase)",
-                lambda: self._heuristic(session),
-                (None, None),
-                "roll-outs instead",
-            )
-            if ids is not None:
-                ids.max_rows = min(ids.max_rows, budgets.ids_rows())
+            ids, locks = budgets.heuristic(self.settings, lambda: self._heuristic(session))
             self._expander = Expander(sim, self._chooser, self.settings, self.rng, ids, locks)
         else:
             self.settings = budgets.size_thts(sim, self._asked)

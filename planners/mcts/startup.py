@@ -40,6 +40,7 @@ from . import sizing as _sizing
 from .options import Settings
 
 if TYPE_CHECKING:
+    from .heuristic import IDS, RewardLocks
     from .stats import SearchStats
 
 log = logging.getLogger(__name__)
@@ -79,6 +80,24 @@ class Budgets:
         except StartupOverrun as err:
             self.startup.skip(what, f"{err}; {why_late}")
             return instead
+
+    def heuristic(
+        self, settings: Settings, build: Callable[[], tuple[IDS | None, RewardLocks | None]]
+    ) -> tuple[IDS | None, RewardLocks | None]:
+        """The wave engine's IDS and reward-lock check (`build`), within the
+        start-up time left (else neither, with a warning), IDS's levels
+        sized to the memory budget."""
+        if settings.heuristic != "ids" and not settings.reward_locks:
+            return None, None
+        ids, locks = self.within(
+            "IDS and the reward-lock check (their joint actions, IDS's learning phase)",
+            build,
+            (None, None),
+            "roll-outs instead",
+        )
+        if ids is not None:
+            ids.max_rows = min(ids.max_rows, self.ids_rows())
+        return ids, locks
 
     def fits(self, what: str, seconds: float, why_late: str) -> bool:
         """Whether `seconds` of start-up are left for `what` (else a warning)."""
