@@ -5,16 +5,14 @@ from __future__ import annotations
 import json
 import logging
 import sys
-from collections.abc import Callable
 from pathlib import Path
-from typing import Any
 
 import click
 import trio
 
 from ..planners.base import ExternalPlanner, PlannerError, find_planner, make_planner
-from .guard import default_memory_budget, run_guarded
-from .session import ClientConfig, ClientError, SessionResult, run_session
+from .guard import default_memory_budget
+from .session import ClientConfig, ClientError, SessionResult, run_session, run_session_guarded
 
 
 def parse_planner_options(pairs: tuple[str, ...]) -> dict[str, str]:
@@ -216,79 +214,20 @@ def main(
             raise click.ClickException(f"planner {planner}: {err}") from None
     else:
         del agent  # made again in the child: the options are checked
-        result = play_guarded(
-            config,
-            planner,
-            options,
-            memory_mb=memory_mb if memory_mb is not None else default_memory_budget(),
-            grace=grace,
-            log_level=logging.WARNING if quiet else logging.INFO,
-        )
+        try:
+            result = run_session_guarded(
+                config,
+                planner,
+                options,
+                memory_mb=memory_mb if memory_mb is not None else default_memory_budget(),
+                grace=grace,
+                log_level=logging.WARNING if quiet else logging.INFO,
+            )
+        except ClientError as err:
+            raise click.ClickException(str(err)) from None
     print_result(result)
     if json_out is not None:
         json_out.write_text(json.dumps(result.as_dict(), indent=2) + "\n")
-
-
-def play_guarded(
-    config: ClientConfig,
-    planner: str,
-    options: dict[str, str],
-    *,
-    memory_mb: float | None,
-    grace: float,
-    log_level: int = logging.INFO,
-) -> SessionResult:
-    """`run_session` with a new `planner` in a child process (`client.guard`): stopped
-    once the session's budget plus `grace` has passed since session-init (before it,
-    the client's own timeout plus `grace`), killed over `memory_mb`; a
-    `click.ClickException` says why."""
-    budget: list[float] = []
-
-    def heard(msg: Any) -> float | None:
-        if msg[0] == "init":
-            budget.append(msg[1])
-            return float(msg[1]) + grace
-        return None
-
-    out = run_guarded(
-        "ippc.client.cli:_session_in_child",
-        (config, planner, options),
-        seconds=(config.timeout or 600.0) + grace,
-        memory_mb=memory_mb,
-        on_message=heard,
-        log_level=log_level,
-    )
-    if out.status == "ok":
-        if isinstance(out.value, str):
-            raise click.ClickException(out.value)
-        result: SessionResult = out.value
-        return result
-    if out.status == "timeout" and budget:
-        raise click.ClickException(
-            f"planner {planner}: still playing {out.seconds:.1f} s after session-init, past "
-            f"the session's budget of {budget[0]:g} s plus {grace:g} s grace; its process "
-            "was stopped"
-        )
-    if out.status == "timeout":
-        raise click.ClickException(
-            f"no session-init {out.seconds:.1f} s after we started (--timeout "
-            f"{config.timeout:g} plus {grace:g} s grace); stopped"
-        )
-    raise click.ClickException(f"planner {planner}: {out.reason}")
-
-
-def _session_in_child(
-    arg: tuple[ClientConfig, str, dict[str, str]], send: Callable[[Any], None]
-) -> SessionResult | str:
-    """The guard's child: make the planner and play; a user-facing error as text."""
-    config, planner, options = arg
-    try:
-        agent = make_planner(planner, options)
-        return trio.run(run_session, config, agent, planner, lambda s: send(("init", s)))
-    except ClientError as err:
-        return str(err)
-    except PlannerError as err:
-        return f"planner {planner}: {err}"
 
 
 def print_result(result: SessionResult) -> None:

@@ -13,6 +13,7 @@ import logging
 import os
 import statistics
 import tempfile
+import threading
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field
@@ -348,6 +349,75 @@ async def _play_round(
         )
         chosen = planner.act(obs)
         await link.send(Actions(tuple(Fluent(n, tuple(a), v) for n, a, v in chosen)))
+
+
+def run_session_guarded(
+    config: ClientConfig,
+    planner: str,
+    options: dict[str, str],
+    *,
+    memory_mb: float | None,
+    grace: float = 30.0,
+    log_level: int = logging.INFO,
+    cancel: threading.Event | None = None,
+) -> SessionResult:
+    """`run_session` with the registered planner `planner` made from `options` in a
+    child process (`client.guard`), blocking: the child is stopped once the session's
+    budget plus `grace` has passed since session-init (before it: the config's timeout
+    plus `grace`) or killed over `memory_mb` MB. `ClientError` says what ended it (for
+    a planner the caller cannot stop: a thread of an event loop can call this)."""
+    from .guard import run_guarded
+
+    budget: list[float] = []
+
+    def heard(msg: Any) -> float | None:
+        if msg[0] == "init":
+            budget.append(msg[1])
+            return float(msg[1]) + grace
+        return None
+
+    out = run_guarded(
+        "ippc.client.session:_session_in_child",
+        (config, planner, options),
+        seconds=(config.timeout or 600.0) + grace,
+        memory_mb=memory_mb,
+        on_message=heard,
+        log_level=log_level,
+        cancel=cancel,
+    )
+    if out.status == "ok":
+        if isinstance(out.value, str):
+            raise ClientError(out.value)
+        result: SessionResult = out.value
+        return result
+    if out.status == "timeout" and budget:
+        raise ClientError(
+            f"planner {planner}: still playing {out.seconds:.1f} s after session-init, past "
+            f"the session's budget of {budget[0]:g} s plus {grace:g} s grace; its process "
+            "was stopped"
+        )
+    if out.status == "timeout":
+        raise ClientError(
+            f"no session-init {out.seconds:.1f} s after we started (timeout "
+            f"{config.timeout:g} s plus {grace:g} s grace); stopped"
+        )
+    raise ClientError(f"planner {planner}: {out.reason}")
+
+
+def _session_in_child(
+    arg: tuple[ClientConfig, str, dict[str, str]], send: Callable[[Any], None]
+) -> SessionResult | str:
+    """The guard's child: make the planner and play; a user-facing error as text."""
+    from ..planners.base import PlannerError, make_planner
+
+    config, planner, options = arg
+    try:
+        agent = make_planner(planner, options)
+        return trio.run(run_session, config, agent, planner, lambda s: send(("init", s)))
+    except ClientError as err:
+        return str(err)
+    except PlannerError as err:
+        return f"planner {planner}: {err}"
 
 
 def default_client_name() -> str:
