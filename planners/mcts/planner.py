@@ -117,6 +117,7 @@ class MCTSPlanner(Planner):
             self._expander = Expander(sim, self._chooser, self.settings, self.rng, ids, locks)
         else:
             self.settings = budgets.size_thts(sim, self._asked)
+            self.settings = budgets.compile(scalar, self.settings)
             self._thts = self._start_thts(session, scalar, seed)
             self.engine = "thts"
         log.info(

@@ -23,12 +23,16 @@ growing the tree within a turn when it holds that many nodes.
 
 from __future__ import annotations
 
+import dataclasses
+import importlib
 import logging
 from collections.abc import Callable
-from typing import TYPE_CHECKING, TypeVar
+from typing import TYPE_CHECKING, Any, TypeVar
 
+from ...rddl.sim.cstep import CUnavailable
+from ...rddl.sim.scalar import ScalarStep
 from ...rddl.simulator import Simulator
-from ..base import Planner, SessionInfo
+from ..base import Planner, PlannerError, SessionInfo
 from ..budget import (
     DEFAULT_STARTUP,
     OneAtATime,
@@ -80,6 +84,29 @@ class Budgets:
         except StartupOverrun as err:
             self.startup.skip(what, f"{err}; {why_late}")
             return instead
+
+    def compile(self, scalar: ScalarStep, settings: Settings) -> Settings:
+        """Build the C step within the start-up time left, so that the
+        planner's own build finds it in the compile cache; `settings` with
+        `compiled=no` when it is late (a warning; the compiler, already
+        running, finishes in the background and fills the cache for the
+        next session). With `compiled=yes` a late build fails the session."""
+        if settings.compiled == "no":
+            return settings
+        build = _c_builder()
+        try:
+            self.startup.run("compiling the C step", lambda: build(scalar))
+        except CUnavailable:
+            return settings  # the planner's own build says why
+        except StartupOverrun as err:
+            if settings.compiled == "yes":
+                raise PlannerError(
+                    f"mcts: compiled=yes, but the C step is not built within the start-up "
+                    f"allowance of {self.startup.seconds:g} s (option startup)"
+                ) from None
+            self.startup.skip("compiling the C step", f"{err}; the Python step")
+            return dataclasses.replace(settings, compiled="no")
+        return settings
 
     def heuristic(
         self, settings: Settings, build: Callable[[], tuple[IDS | None, RewardLocks | None]]
@@ -149,3 +176,17 @@ class Budgets:
                 nodes + turn.leaves,
             )
         return True
+
+
+def _c_builder() -> Callable[[ScalarStep], Any]:
+    """What builds the thts engine's C step: `ckernels.Kernels` where the
+    planner's C sources are package data, else the compiled step with the
+    tree's C text (`ctree.TREE_C`)."""
+    try:
+        module = importlib.import_module(f"{__package__}.ckernels")
+    except ImportError:
+        from ...rddl.sim.cstep import CStep
+
+        tree_c = importlib.import_module(f"{__package__}.ctree").TREE_C
+        return lambda scalar: CStep(scalar, extra=tree_c)
+    return module.Kernels  # type: ignore[no-any-return]

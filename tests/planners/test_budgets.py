@@ -399,3 +399,26 @@ def test_uniform_sends_noop_when_a_draw_is_late(
     got = planner.act(first_turn(sim, 5.0))
     assert drawn == [got]  # the draw's own action, in time
     assert {n for n, _, _ in got} <= {"pull"} and len(got) <= 1
+
+
+def test_mcts_late_compile_falls_back_to_the_python_step(
+    caplog: pytest.LogCaptureFixture, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from ippc.planners.mcts import startup as startup_module
+
+    release = threading.Event()
+    monkeypatch.setattr(startup_module, "_c_builder", lambda: lambda scalar: release.wait(10.0))
+    model = tiny("trap")
+    planner = MCTSPlanner(startup="0.2", seed="1")
+    with caplog.at_level(logging.WARNING):
+        planner.start_session(session_of(model))
+    release.set()
+    assert "start-up: compiling the C step skipped" in caplog.text
+    assert "the Python step" in caplog.text
+    assert planner.settings.compiled == "no" and not planner.compiled
+    assert planner._asked.compiled == "auto"
+    strict = MCTSPlanner(startup="0.2", compiled="yes", seed="1")
+    release.clear()
+    with pytest.raises(PlannerError, match="compiled=yes, but the C step is not built within"):
+        strict.start_session(session_of(model))
+    release.set()
