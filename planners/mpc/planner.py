@@ -31,8 +31,8 @@ from .space import ActionSpace, Samples
 
 log = logging.getLogger(__name__)
 
-ITERATIONS = 5  # rounds of refitting a turn should have time for
-MIN_SAMPLES = 8  # fewer and the horizon is shortened instead
+ITERATIONS = 3  # rounds of refitting a turn should have time for
+MIN_SAMPLES = 16  # the fewest samples a round draws (unless memory allows fewer)
 KEPT = 4  # best sequences of a turn offered again in the next one
 # bytes a state or an action takes inside a step, per byte it takes at rest
 # (the step's temporaries)
@@ -133,6 +133,8 @@ class MPCPlanner(Planner):
                     sim.step(states, noop, self.rng, check=False)
                     times.append(time.perf_counter() - t0)
                 cost[n] = min(times)
+                sim.check_actions(states, noop)  # compiles the legality check too
+            sim.check_actions(self.initial, sim.noop(1))
         except SimulationError as err:
             log.info("mpc: noop cannot be simulated from the initial state (%s)", err)
         if len(cost) == 2:
@@ -152,19 +154,22 @@ class MPCPlanner(Planner):
         )
 
     def _adapt(self, rounds: int) -> None:
-        """Fewer samples (then a shorter horizon) after a turn that managed
-        fewer than `ITERATIONS` rounds of refitting; more after one that
-        managed twice as many."""
-        if rounds < ITERATIONS:
+        """Fewer samples after a turn in which not one round of refitting
+        fitted (then, at `MIN_SAMPLES`, a shorter horizon); more samples, or
+        the horizon back, after one that managed twice `ITERATIONS`. A turn
+        with few rounds is kept as it is: the plan carries over from turn to
+        turn, and a simulator call's cost hardly depends on the batch at
+        these sizes (most of it is the call's fixed part)."""
+        if rounds == 0:
             if self.n > MIN_SAMPLES:
-                self.n = max(MIN_SAMPLES, int(self.n * max(0.5, rounds / ITERATIONS)))
+                self.n = max(MIN_SAMPLES, self.n // 2)
             else:
                 self.h_limit = max(1, int(self.h_limit * 0.7))
         elif rounds >= 2 * ITERATIONS:
             if self.h_limit < self.horizon:
                 self.h_limit = min(self.horizon, self.h_limit + max(1, self.h_limit // 2))
             else:
-                self.n = min(self.cap, max(self.n + 1, int(self.n * 1.5)))
+                self.n = min(self.cap, max(self.n + 1, int(self.n * 1.3)))
 
     def start_round(self, round_num: int) -> None:
         self._plan = None

@@ -31,7 +31,7 @@ ELITE = 0.1  # cem: the fraction of samples refitted to
 TEMPERATURE = 0.1  # mppi: weights exp((R - max R) / (TEMPERATURE * std R))
 SMOOTHING = 0.8  # how far a refit moves the plan
 MIN_STD = 0.01  # of a bounded number's range (or of its initial spread)
-KEEP = 0.5  # how much of the learnt spread a shift keeps
+KEEP = 0.9  # how much of the learnt spread a shift keeps
 GROWTH = 2.0  # the spread of an unbounded number that moved by more than it
 
 METHODS = ("cem", "mppi")

@@ -168,7 +168,9 @@ class ActionSpace:
 
     def plan_bytes_per_step(self) -> int:
         """Bytes one step of a plan takes (its means, spreads, probabilities)."""
-        return 8 * (3 * self.n_numbers + self.n_flags + sum(ch.groups * ch.options for ch in self.choices))
+        return 8 * (
+            3 * self.n_numbers + self.n_flags + sum(ch.groups * ch.options for ch in self.choices)
+        )
 
     # -- values --------------------------------------------------------
 
