@@ -168,11 +168,19 @@ class MCTSPlanner(Planner):
         # random-walk states (their own generator: the search's draws stay those of
         # the seed) to check the legal actions in C on and to learn IDS's depth on
         states: list[tuple[Any, ...]] = []
-        if cstep is not None and (st.heuristic == "ids" or not search._static):
+        assert self.budgets is not None
+        if (
+            cstep is not None
+            and (st.heuristic == "ids" or not search._static)
+            and self.budgets.fits(
+                "random-walk states (to check the legal actions in C on, to learn IDS on)",
+                ENUM_SECONDS + IDS_SECONDS,
+                "the Python solver's candidates",
+            )
+        ):
             rng = np.random.default_rng(None if seed is None else [seed, 1])
             train = training_states(sim, rng)
             states = [scalar.encode_state(train, i) for i in range(min(train.batch, 16))]
-        assert self.budgets is not None
         if states and not self.budgets.fits(
             "checking the legal actions in C", ENUM_SECONDS, "the Python solver's candidates"
         ):
