@@ -18,14 +18,15 @@ from typing import Any, ClassVar
 import numpy as np
 
 from ...rddl.model import Model
-from ...rddl.sim.cstep import CStep, CUnavailable
+from ...rddl.sim.cstep import CUnavailable
 from ...rddl.sim.scalar import ScalarStep, ScalarUnsupported
 from ...rddl.simulator import SimulationError, Simulator, State
 from ...rddl.wire import WireCodec, WireError
 from ..base import Observation, Planner, PlannerError, SessionInfo, WireFluent
 from ..budget import guarded_turn
 from .actions import ActionChooser, ActionLibrary, _row_keys
-from .ctree import TREE_C, attach
+from .ckernels import Kernels
+from .ctree import attach
 from .deadline import Deadline
 from .heuristic import IDS, RewardLocks, training_states
 from .options import OPTIONS, Settings, read_settings
@@ -158,7 +159,7 @@ class MCTSPlanner(Planner):
         cstep = None
         if st.compiled != "no":
             try:
-                cstep = CStep(scalar, extra=TREE_C)
+                cstep = Kernels(scalar)
             except CUnavailable as err:
                 if st.compiled == "yes":
                     raise PlannerError(f"mcts: compiled=yes, but no C step: {err}") from None

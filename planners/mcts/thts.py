@@ -62,7 +62,7 @@ The action draws of roll-outs and UCB1's tie-breaks use a Python
 `random.Random` seeded from the planner's generator, and the step's draws
 the planner's numpy generator: the same seed gives the same search.
 
-With a compiled step (`rddl.sim.cstep.CStep`, option `compiled`), the
+With the compiled step and kernels (`ckernels.Kernels`, option `compiled`), the
 probing, roll-outs, sampled steps and, for static candidates, IDS run in C
 (`_cprobe`, `_cids`, `_walk`), the draws then from the C generator seeded
 from the planner's; and `ctree.attach` moves the trials themselves into C
@@ -86,10 +86,10 @@ from typing import Any
 
 import numpy as np
 
-from ...rddl.sim.cstep import CStep
 from ...rddl.sim.scalar import ScalarStep
 from ...rddl.simulator import Simulator
 from .actions import ActionChooser, state_dependent
+from .ckernels import Kernels
 from .heuristic import RewardLocks
 from .options import Settings
 from .relevance import downward_closed
@@ -254,7 +254,7 @@ class THTS:
         rng: np.random.Generator,
         gamma: float,
         locks: RewardLocks | None = None,
-        cstep: CStep | None = None,
+        cstep: Kernels | None = None,
     ) -> None:
         self.sim = sim
         self.fast = scalar

@@ -4,32 +4,33 @@ both give the same successor, reward and end, on the first instance of
 every IPPC 2011/2014/2018 MDP domain (instances 1-5 in the slow sweep) and
 on hand-made domains that pin the translation's semantics (Python's
 `and`/`or`, short-circuit draw recording, Discrete and Normal records, the
-arithmetic helpers, enum tables, if and switch). Then the kernels: `probe`
-(deterministic actions, equivalent ones dropped, the same-reward flag),
-`ids_values` against a brute-force IDS in Python, `walk` and `sample`
-against the Python step fed the C generator's draws (splitmix64 written
-again here), and what makes the C step unavailable (`CUnavailable`: a
-failing or missing compiler, a construct the translator does not know)
-and the cache of compiled libraries. The libraries go to the run's
+arithmetic helpers, enum tables, if and switch). Then what makes the C step
+unavailable (`CUnavailable`: a failing or missing compiler, a construct the
+translator does not know), the private cache of compiled libraries, and the
+C files of the package compiled with -Wall -Wextra -Werror (mcts's search
+kernels are tested in tests/planners/test_mcts_kernels.py). The libraries go to the run's
 temporary folder (tests/conftest.py sets IPPC_CACHE)."""
 
 from __future__ import annotations
 
 import ast
 import copy
+import hashlib
 import itertools
 import math
 import os
 import stat
+import subprocess
 import tempfile
-from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+import ippc.planners.mcts.ckernels as ckernels
 import numpy as np
 import pytest
+from ippc.planners.mcts.ckernels import kernel_source
 from ippc.rddl import load, load_pair
-from ippc.rddl.sim import cstep as cstep_module
+from ippc.rddl.sim import cbuild
 from ippc.rddl.sim.cstep import CStep, CUnavailable, c_source, find_compiler
 from ippc.rddl.sim.scalar import _HELPERS, ScalarStep
 from ippc.rddl.simulator import Simulator
@@ -534,362 +535,6 @@ def test_an_unknown_construct_is_unavailable(tmp_path: Path, line: str, why: str
     assert why in str(err.value)
 
 
-# -- probe ---------------------------------------------------------------------
-
-PROBE = """
-domain probe_d {
-    requirements = { concurrent };
-    pvariables {
-        p : { state-fluent, real, default = 1.0 };
-        v : { state-fluent, real, default = 0.0 };
-        lit : { state-fluent, bool, default = false };
-        y : { state-fluent, real, default = 0.0 };
-        coin : { interm-fluent, bool };
-        press-a : { action-fluent, bool, default = false };
-        press-b : { action-fluent, bool, default = false };
-        press-c : { action-fluent, bool, default = false };
-        press-d : { action-fluent, bool, default = false };
-        sure : { action-fluent, bool, default = false };
-        nudge : { action-fluent, bool, default = false };
-        flip : { action-fluent, bool, default = false };
-    };
-    cpfs {
-        coin = flip ^ Bernoulli(0.5);
-        // a and b: the same probability; c another one; d the same as a
-        // but with a cost; sure: the probability p (a state fluent)
-        lit' = if (press-a | press-b | press-d) then Bernoulli(0.7)
-               else if (press-c) then Bernoulli(0.6)
-               else if (sure) then Bernoulli(p)
-               else lit;
-        // nudge: a normal of variance v (a state fluent)
-        y' = if (nudge) then Normal(y + 1.0, v) else y;
-        p' = p;
-        v' = v;
-    };
-    reward = lit - 0.5 * press-d + coin;
-}
-instance probe_inst {
-    domain = probe_d;
-    init-state { p = 1.0; };
-    max-nondef-actions = 1;
-    horizon = 5;
-    discount = 1.0;
-}
-"""
-
-PROBE_ACTIONS = ["noop", "press-a", "press-b", "press-c", "press-d", "sure", "nudge", "flip"]
-
-
-def probe_setup(tmp_path: Path) -> tuple[Simulator, ScalarStep, CStep, list[tuple[Any, ...]]]:
-    sim = model_of(tmp_path, PROBE, "probe_inst")
-    fast, c = both(sim)
-    acts = []
-    for name in PROBE_ACTIONS:
-        a = sim.noop(1)
-        if name != "noop":
-            a[name][0] = True
-        acts.append(fast.encode_actions(a))
-    return sim, fast, c, acts
-
-
-@needs_cc
-@pytest.mark.parametrize("p,v", [(1.0, 0.0), (0.5, 1.0)])
-def test_probe_deterministic_equivalent_and_same_reward(tmp_path: Path, p: float, v: float) -> None:
-    """noop is deterministic (no site reached); press-a is not; press-b is
-    press-a again (the same probability, successors and rewards: dropped,
-    the first is kept); press-c (another probability) and press-d (another
-    reward) are kept; sure (Bernoulli(p)) and nudge (Normal(., v)) are
-    deterministic exactly when p is 1 and v is 0; flip's reward is drawn
-    (an interm Bernoulli): its two probes' rewards differ."""
-    sim, fast, c, acts = probe_setup(tmp_path)
-    state = fast.encode_state(sim.initial_state(1))
-    keys = [name for name, _ in fast.state_keys]
-    state = tuple(p if k == "p" else v if k == "v" else x for k, x in zip(keys, state, strict=True))
-    # every uniform 0.1 in the first probe (each Bernoulli true), 0.9 in
-    # the second (each false)
-    draws = (
-        *c.draw_block([0.1] * c.nu, [0.3] * c.nz),
-        *c.draw_block([0.9] * c.nu, [-0.3] * c.nz),
-    )
-    out = c.probe(state, c.block(acts), len(acts), draws)
-    kept = {PROBE_ACTIONS[row]: rest for row, *rest in out}
-    assert [PROBE_ACTIONS[row] for row, *_ in out] == [a for a in PROBE_ACTIONS if a != "press-b"]
-    det = {name: k[0] for name, k in kept.items()}
-    certain = p == 1.0 and v == 0.0
-    assert det == {
-        "noop": True,
-        "press-a": False,
-        "press-c": False,
-        "press-d": False,
-        "sure": certain,
-        "nudge": certain,
-        "flip": False,
-    }
-    same_r = {name: k[4] for name, k in kept.items()}
-    assert same_r == {name: name != "flip" for name in kept}
-    # the first probe's successor, reward and done are the Python step's
-    # with its draws
-    for name, (_, s1, r1, d1, _) in kept.items():
-        act = acts[PROBE_ACTIONS.index(name)]
-        py = fast.step(state, act, Draws([0.1] * c.nu, [0.3] * c.nz))
-        assert_same((s1, r1, d1), py, name)
-    assert kept["flip"][2] == 1.0  # the coin came up in the first probe
-
-
-@needs_cc
-def test_probe_of_no_action_and_one(tmp_path: Path) -> None:
-    sim, fast, c, acts = probe_setup(tmp_path)
-    state = fast.encode_state(sim.initial_state(1))
-    draws = (*c.draw_block([0.1], [0.0]), *c.draw_block([0.9], [0.0]))
-    assert c.probe(state, c.block([]), 0, draws) == []
-    (only,) = c.probe(state, c.block(acts[1:2]), 1, draws)
-    assert only[0] == 0 and only[1] is False
-
-
-# -- ids_values ------------------------------------------------------------------
-
-_TOKENS = itertools.count(10**12)  # (apart from the planner's tokens)
-
-
-def sysadmin_actions(sim: Simulator, fast: ScalarStep) -> list[tuple[Any, ...]]:
-    """noop and every single reboot (SysAdmin #1: max-nondef-actions 1)."""
-    acts = [fast.noop]
-    for i in range(len(fast.noop)):
-        a = sim.noop(1)
-        a["reboot"][0, i] = True
-        acts.append(fast.encode_actions(a))
-    return acts
-
-
-def brute_ids(
-    fast: ScalarStep, acts: list[tuple[Any, ...]], gamma: float
-) -> Callable[[tuple[Any, ...], tuple[Any, ...], int], float]:
-    """An action's IDS value on the most-likely determinisation (every
-    uniform 0.5, every normal 0), by plain recursion over `acts`."""
-    likely = Draws([0.5] * fast.n_uniforms, [0.0] * fast.n_normals)
-    memo: dict[tuple[Any, ...], float] = {}
-
-    def best(state: tuple[Any, ...], depth: int) -> float:
-        key = (state, depth)
-        if key not in memo:
-            memo[key] = max(value(state, a, depth) for a in acts)
-        return memo[key]
-
-    def value(state: tuple[Any, ...], act: tuple[Any, ...], depth: int) -> float:
-        nxt, r, done = fast.step(state, act, likely)
-        if done or depth <= 1:
-            return r
-        return r + gamma * best(nxt, depth - 1)
-
-    return value
-
-
-@needs_cc
-def test_ids_values_equal_a_brute_force_ids() -> None:
-    """SysAdmin #1 (11 candidates), depths 1-3, discount 1 and 0.9, from
-    the initial state and from one with computers down: each action's
-    value is the brute-force recursion's; another token clears the cache
-    (the values of another discount are not reused), the same token reuses
-    it (only the kept actions are stepped again)."""
-    sim = Simulator(load_pair(*ippc_files("IPPC2011", "SysAdmin", 1)))
-    fast, c = both(sim)
-    acts = sysadmin_actions(sim, fast)
-    cands = c.block(acts)
-    kept = acts[:4]
-    start = fast.encode_state(sim.initial_state(1))
-    down = tuple(bool(i % 3) for i in range(len(start)))
-    for gamma, state, depth in itertools.product((1.0, 0.9), (start, down), (1, 2, 3)):
-        value = brute_ids(fast, acts, gamma)
-        want = [value(state, a, depth) for a in kept]
-        token = next(_TOKENS)
-        got, made = c.ids_values(
-            state, c.block(kept), len(kept), cands, len(acts), depth, gamma, token
-        )
-        assert got == pytest.approx(want, rel=1e-9), (gamma, depth)
-        assert made >= len(kept) + (0 if depth == 1 else len(acts))
-        again, made2 = c.ids_values(
-            state, c.block(kept), len(kept), cands, len(acts), depth, gamma, token
-        )
-        assert again == got and made2 == len(kept)  # every successor's value cached
-    # the same token with another discount: the cache (discount 0.5) is kept,
-    # so the values are not discount 1's; another token clears it
-    value = brute_ids(fast, acts, 1.0)
-    want = [value(down, a, 3) for a in kept]
-    token = next(_TOKENS)
-    c.ids_values(down, c.block(kept), len(kept), cands, len(acts), 3, 0.5, token)
-    stale, _ = c.ids_values(down, c.block(kept), len(kept), cands, len(acts), 3, 1.0, token)
-    assert stale != pytest.approx(want, rel=1e-9)
-    fresh, _ = c.ids_values(down, c.block(kept), len(kept), cands, len(acts), 3, 1.0, next(_TOKENS))
-    assert fresh == pytest.approx(want, rel=1e-9)
-    # ids_clear empties it too
-    c.ids_values(down, c.block(kept), len(kept), cands, len(acts), 3, 0.5, token)
-    c.ids_clear()
-    cleared, _ = c.ids_values(down, c.block(kept), len(kept), cands, len(acts), 3, 1.0, token)
-    assert cleared == pytest.approx(want, rel=1e-9)
-
-
-# -- walk and sample: the C generator's draws, fed to the Python step -----------
-
-MASK = 2**64 - 1
-
-
-class SplitMix:
-    """cstep's generator (splitmix64), its uniforms and its Box-Muller
-    normals, written again: the draws the C kernels make."""
-
-    def __init__(self, seed: int):
-        self.state = seed & MASK
-
-    def next64(self) -> int:
-        self.state = (self.state + 0x9E3779B97F4A7C15) & MASK
-        z = self.state
-        z = ((z ^ (z >> 30)) * 0xBF58476D1CE4E5B9) & MASK
-        z = ((z ^ (z >> 27)) * 0x94D049BB133111EB) & MASK
-        return z ^ (z >> 31)
-
-    def unif(self) -> float:
-        return (self.next64() >> 11) * 2.0**-53
-
-    def draws(self, nu: int, nz: int) -> tuple[list[float], list[float]]:
-        u = [self.unif() for _ in range(nu)]
-        z = [0.0] * nz
-        for i in range(0, nz, 2):
-            u1, u2 = self.unif(), self.unif()
-            r = math.sqrt(-2.0 * math.log(1.0 - u1))
-            z[i] = r * math.cos(2 * math.pi * u2)
-            if i + 1 < nz:
-                z[i + 1] = r * math.sin(2 * math.pi * u2)
-        return u, z
-
-
-def walk_by_hand(
-    fast: ScalarStep,
-    c: CStep,
-    state: tuple[Any, ...],
-    n: int,
-    pool: list[tuple[Any, ...]] | None,
-    gamma: float,
-    seed: int,
-) -> tuple[float, int, bool, int]:
-    """`CStep.walk` with the Python step: (return, steps, ended, the
-    generator's state after)."""
-    g = SplitMix(seed)
-    total, disc, taken = 0.0, 1.0, 0
-    for _ in range(n):
-        act = pool[g.next64() % len(pool)] if pool else fast.noop
-        u, z = g.draws(c.nu, c.nz)
-        state, r, done = fast.step(state, act, Draws(u, z))
-        total += disc * r
-        disc *= gamma
-        taken += 1
-        if done:
-            return total, taken, True, g.state
-    return total, taken, False, g.state
-
-
-NORMALS = """
-domain drift {
-    requirements = { concurrent };
-    pvariables {
-        x : { state-fluent, real, default = 0.0 };
-        w : { state-fluent, real, default = 0.0 };
-        on : { state-fluent, bool, default = false };
-        push : { action-fluent, bool, default = false };
-    };
-    cpfs {
-        x' = Normal(x + push, 1.0);
-        w' = Normal(w, 0.25 + on);
-        on' = Bernoulli(0.3 + 0.4 * push);
-    };
-    reward = -abs[x] + on;
-    termination { x > 2.5; };
-}
-instance drift_inst {
-    domain = drift;
-    init-state { x = 0.0; };
-    max-nondef-actions = 1;
-    horizon = 30;
-    discount = 0.95;
-}
-"""
-
-
-@needs_cc
-@pytest.mark.parametrize("seed", [1, 12345, 2**63 + 7])
-def test_walk_and_sample_are_the_python_step_with_the_c_draws(tmp_path: Path, seed: int) -> None:
-    """A noop walk and a walk over a pool of actions, on SysAdmin #1
-    (uniforms only) and on a domain with normals and termination: the
-    return, the steps taken, whether the run ended and the generator's
-    state after are those of the Python step fed the same draws; so is a
-    sampled transition."""
-    sysadmin = Simulator(load_pair(*ippc_files("IPPC2011", "SysAdmin", 1)))
-    drift = model_of(tmp_path, NORMALS, "drift_inst")
-    ended_any = False
-    for sim in (sysadmin, drift):
-        fast, c = both(sim)
-        acts = (
-            sysadmin_actions(sim, fast)
-            if sim is sysadmin
-            else [fast.noop, fast.encode_actions({"push": np.array([True])})]
-        )
-        state = fast.encode_state(sim.initial_state(1))
-        for pool, n in ((None, 25), (acts, 25), (acts, 1), (None, 0)):
-            c.rng.value = seed & MASK
-            block = c.block(pool) if pool else None
-            got = c.walk(state, n, block, len(pool) if pool else 0, 0.95)
-            total, taken, ended, after = walk_by_hand(fast, c, state, n, pool, 0.95, seed)
-            assert got[1:] == (taken, ended)
-            assert got[0] == pytest.approx(total, rel=1e-9, abs=1e-12)
-            assert c.rng.value == after
-            ended_any |= ended
-        c.rng.value = seed & MASK
-        g = SplitMix(seed)
-        for act in acts:
-            u, z = g.draws(c.nu, c.nz)
-            assert_same(c.sample(state, act), fast.step(state, act, Draws(u, z)))
-        assert c.rng.value == g.state
-    assert ended_any or seed != 1  # (seed 1: the drift passes 2.5 within 25 steps)
-
-
-COUNTDOWN = """
-domain countdown {
-    requirements = { concurrent };
-    pvariables {
-        k : { state-fluent, int, default = 0 };
-        skip : { action-fluent, bool, default = false };
-    };
-    cpfs {
-        k' = k + 1 + skip;
-    };
-    reward = k;
-    termination { k >= 3; };
-}
-instance countdown_inst {
-    domain = countdown;
-    init-state { k = 0; };
-    max-nondef-actions = 1;
-    horizon = 10;
-    discount = 1.0;
-}
-"""
-
-
-@needs_cc
-def test_walk_stops_at_termination_with_the_exact_return(tmp_path: Path) -> None:
-    """Deterministic: from k = 0 the noop walk ends after 3 steps (k' = 3)
-    with rewards 0, 1, 2; a walk of 2 steps does not end; a pool of `skip`
-    alone ends after 2 steps (0 + 2)."""
-    sim = model_of(tmp_path, COUNTDOWN, "countdown_inst")
-    fast, c = both(sim)
-    s0 = fast.encode_state(sim.initial_state(1))
-    assert c.walk(s0, 10, None, 0, 1.0) == (3.0, 3, True)
-    assert c.walk(s0, 10, None, 0, 0.5) == (0 + 0.5 * 1 + 0.25 * 2, 3, True)
-    assert c.walk(s0, 2, None, 0, 1.0) == (1.0, 2, False)
-    skip = [fast.encode_actions({"skip": np.array([True])})]
-    assert c.walk(s0, 10, c.block(skip), 1, 1.0) == (2.0, 2, True)
-    assert c.walk((5,), 4, None, 0, 1.0) == (5.0, 1, True)
-
-
 # -- CUnavailable -----------------------------------------------------------------
 
 
@@ -919,7 +564,7 @@ def test_no_compiler_is_unavailable(
         monkeypatch.setenv("CC", str(tmp_path / "no-such-cc"))
     else:
         monkeypatch.delenv("CC", raising=False)
-        monkeypatch.setattr(cstep_module.shutil, "which", lambda _name: None)
+        monkeypatch.setattr(cbuild.shutil, "which", lambda _name: None)
     assert find_compiler() is None
     with pytest.raises(CUnavailable, match="no C compiler"):
         CStep(sysadmin_step())
@@ -968,28 +613,171 @@ def test_a_second_cstep_loads_the_cached_library(
 
 
 @needs_cc
-def test_an_unwritable_cache_falls_back_to_a_temporary_folder(
+def test_an_unwritable_cache_falls_back_to_a_private_temporary_folder(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
+    """cstep/ cannot be made under a file: the build goes to a fresh
+    folder of tempfile's (mode 0700, this user's), the same one for the
+    rest of the process."""
     blocker = tmp_path / "a-file"
     blocker.write_text("")
-    monkeypatch.setenv("IPPC_CACHE", str(blocker))  # cstep/ cannot be made under a file
+    monkeypatch.setenv("IPPC_CACHE", str(blocker))
     monkeypatch.setattr(tempfile, "tempdir", str(tmp_path / "tmp"))
+    monkeypatch.setattr(cbuild, "_TEMP", None)
     (tmp_path / "tmp").mkdir()
     c = CStep(sysadmin_step())
-    assert c.path.parent == tmp_path / "tmp" / f"ippc-cstep-{os.getuid()}"
+    folder = c.path.parent
+    assert folder.parent == tmp_path / "tmp" and folder.name.startswith("ippc-cstep-")
+    st = folder.stat()
+    assert stat.S_IMODE(st.st_mode) == 0o700 and st.st_uid == os.getuid()
+    assert CStep(sysadmin_step()).path == c.path
 
 
-def test_the_default_cache_is_under_home(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+def test_the_default_cache_is_under_home_and_private(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """~/.cache/ippc/cstep, created mode 0700 (and its new parent too)."""
     monkeypatch.delenv("IPPC_CACHE", raising=False)
     monkeypatch.setenv("HOME", str(tmp_path))
-    assert cstep_module._cache_dir() == tmp_path / ".cache" / "ippc" / "cstep"
+    folder = cbuild.cache_dir()
+    assert folder == tmp_path / ".cache" / "ippc" / "cstep"
+    assert stat.S_IMODE(folder.stat().st_mode) == 0o700
+    assert stat.S_IMODE(folder.parent.stat().st_mode) == 0o700
+
+
+PLANTED = r"""
+#include <stdio.h>
+__attribute__((constructor)) static void planted(void) {
+    FILE *f = fopen(MARK, "w");
+    if (f) { fputs("loaded", f); fclose(f); }
+}
+"""
+
+
+def plant(folder: Path, scalar: ScalarStep, mark: Path) -> Path:
+    """A library at the very name the step's build would load, which writes
+    `mark` when it is loaded."""
+    cc = find_compiler()
+    assert cc is not None
+    digest = hashlib.sha256((cc + "\0" + c_source(scalar)).encode()).hexdigest()[:24]
+    lib = folder / f"step-{digest}.so"
+    src = folder.parent / "planted.c"
+    src.write_text(PLANTED)
+    subprocess.run(
+        [*cc.split(), "-shared", "-fPIC", f'-DMARK="{mark}"', "-o", str(lib), str(src)],
+        check=True,
+    )
+    return lib
+
+
+@needs_cc
+@pytest.mark.parametrize("wrong", ["mode 0777", "mode 0720", "owner", "symlink"])
+def test_a_planted_cache_folder_is_refused_and_its_library_never_loaded(
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    caplog: pytest.LogCaptureFixture,
+    wrong: str,
+) -> None:
+    """Another user made the cache folder first (writable by others, owned
+    by someone else, or a link to a folder elsewhere) and put a library
+    there under the name the build would load: the folder is refused with
+    a warning naming it, the step is built in a private temporary folder,
+    and the planted library is never loaded (it would write a mark)."""
+    base = tmp_path / "cache"
+    base.mkdir(mode=0o700)
+    folder = base / "cstep"
+    elsewhere = tmp_path / "elsewhere"
+    (elsewhere if wrong == "symlink" else folder).mkdir()
+    if wrong == "symlink":
+        elsewhere.chmod(0o700)
+        folder.symlink_to(elsewhere)
+    scalar = sysadmin_step()
+    mark = tmp_path / "mark"
+    planted = plant(folder, scalar, mark)
+    if wrong.startswith("mode"):
+        folder.chmod(int(wrong.split()[1], 8))
+    elif wrong == "owner":  # (as if another uid owned it)
+        folder.chmod(0o700)
+        uid = os.getuid()
+        monkeypatch.setattr(cbuild, "_uid", lambda: uid + 1)
+        if uid == 0:  # root can make it so for real
+            monkeypatch.setattr(cbuild, "_uid", lambda: 0)
+            os.chown(folder, 12345, -1)
+    monkeypatch.setenv("IPPC_CACHE", str(base))
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path / "tmp"))
+    monkeypatch.setattr(cbuild, "_TEMP", None)
+    monkeypatch.setattr(cbuild, "_REFUSED", set())
+    (tmp_path / "tmp").mkdir()
+    with caplog.at_level("WARNING", logger="ippc.rddl.sim.cbuild"):
+        c = CStep(scalar)
+    assert not mark.exists()
+    assert c.path != planted and c.path.parent.parent == tmp_path / "tmp"
+    assert "cache folder refused" in caplog.text and str(folder) in caplog.text
+    # and the step it built works
+    s = scalar.encode_state(scalar.sim.initial_state(1))
+    assert_same(
+        c.step(s, scalar.noop, [0.5] * c.nu, [0.0]),
+        scalar.step(s, scalar.noop, Draws([0.5] * 20, [])),
+    )
+
+
+@needs_cc
+def test_a_planted_library_in_the_private_folder_is_not_loaded(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A library of the cache that others may write (mode 0666) is not
+    loaded: it is built again in its place."""
+    base = tmp_path / "cache"
+    monkeypatch.setenv("IPPC_CACHE", str(base))
+    folder = cbuild.cache_dir()
+    scalar = sysadmin_step()
+    mark = tmp_path / "mark"
+    planted = plant(folder, scalar, mark)
+    planted.chmod(0o666)
+    c = CStep(scalar)
+    assert not mark.exists()
+    assert c.path == planted and stat.S_IMODE(planted.stat().st_mode) == 0o700
+
+
+def c_files() -> list[Path]:
+    """The C files of the package (rddl/sim/csrc, planners/mcts/csrc)."""
+    ours = Path(cbuild.__file__).with_name("csrc")
+    theirs = Path(ckernels.__file__).with_name("csrc")
+    return sorted(ours.glob("*.c")) + sorted(theirs.glob("*.c"))
+
+
+STRICT = ["-Wall", "-Wextra", "-Werror"]
+
+
+def test_the_c_files_compile_without_a_warning(tmp_path: Path) -> None:
+    """Each C file of the package alone (csrc/step.h standing in for the
+    generated step), and whole units as a session builds them (the step of
+    several instances with mcts's kernels and tree), with -Wall -Wextra
+    -Werror: CI fails on a warning."""
+    cc = find_compiler()
+    if cc is None:
+        pytest.skip("no C compiler (cc, gcc, clang or $CC): the C files are not checked")
+
+    files = c_files()
+    assert {f.name for f in files} >= {"step_api.c", "kernels.c", "tree.c"}
+    units = [(f.parent, f) for f in files]
+    for i, (year, domain) in enumerate(
+        [("IPPC2011", "SysAdmin"), ("IPPC2018", "AcademicAdvising"), ("IPPC2014", "Wildfire")]
+    ):
+        scalar = ScalarStep(Simulator(load_pair(*ippc_files(year, domain, 1))))
+        unit = tmp_path / f"unit{i}.c"
+        unit.write_text(c_source(scalar, kernel_source()))
+        units.append((tmp_path, unit))
+    for cwd, f in units:
+        cmd = [*cc.split(), "-O1", "-fPIC", "-c", *STRICT, "-o", os.devnull, str(f)]
+        done = subprocess.run(cmd, cwd=cwd, capture_output=True, text=True, check=False)
+        assert done.returncode == 0, f"{f.name}: {done.stderr[:2000]}"
 
 
 def test_which_is_the_compiler(monkeypatch: pytest.MonkeyPatch) -> None:
     """$CC first (with its flags kept), else the first of cc, gcc, clang."""
     monkeypatch.setattr(
-        cstep_module.shutil, "which", lambda name: f"/bin/{name}" if name != "cc" else None
+        cbuild.shutil, "which", lambda name: f"/bin/{name}" if name != "cc" else None
     )
     monkeypatch.setenv("CC", "gcc -m64")
     assert find_compiler() == "gcc -m64"
