@@ -23,6 +23,7 @@ from ..web import WebOptions, web_options, web_url
 from .config import SensingConfig, SensingConfigError
 from .dispatcher import DispatcherError
 from .run import (
+    DEFAULT_GOAL_SESSIONS,
     DEFAULT_ROUNDS,
     LinkPolicy,
     ListenError,
@@ -50,9 +51,15 @@ def print_report(report: RunReport) -> None:
         f"{report.failed_actions} failed action(s), planning {report.planning_seconds:.3f} s, "
         f"execution {report.execution_seconds:.1f} s"
     )
-    for g in report.goals:
+    goals = report.goals
+    if len(goals) == 1 and goals[0].get("outcome") == "reached" and report.goal_reached:
+        goals = []  # the line above says it all
+    for g in goals:
+        outcome = g.get("outcome") or ("reached" if g["reached"] else "not reached")
+        if g.get("turn") is not None:
+            outcome += f" at turn {g['turn']}"
         click.echo(
-            f"goal {g['goal']}: {'reached' if g['reached'] else 'not reached'} in {g['turns']} turns, "
+            f"goal {g['goal']}: {outcome} after {g['turns']} turns, "
             f"{g['actions']} action(s), {g['failed_actions']} failed"
         )
     if len(report.sessions) > 1 or report.planner_restarts:
@@ -156,6 +163,13 @@ def print_report(report: RunReport) -> None:
     help="Serve goals until stopped: each goal set at run time (kb.set_goal) gets a session; implies --on-planner-loss wait.",
 )
 @click.option(
+    "--goal-sessions",
+    type=click.IntRange(min=0),
+    default=DEFAULT_GOAL_SESSIONS,
+    show_default=True,
+    help="With --serve-goals: sessions a goal is served without being reached before it is abandoned (a warning, and its outcome); 0 = never.",
+)
+@click.option(
     "--fresh",
     is_flag=True,
     help="Start from the instance's initial state, not from the facts journaled in --db.",
@@ -211,6 +225,7 @@ def main(
     planner_silence: float | None,
     watchdog: float,
     serve_goals: bool,
+    goal_sessions: int,
     fresh: bool,
     db: Path | None,
     json_out: Path | None,
@@ -281,6 +296,7 @@ def main(
                 stop_at_goal=not no_stop_at_goal,
                 handle_signals=True,
                 web=page,
+                resume=not fresh,
             )
         except (RDDLError, KBError) as err:
             raise click.ClickException(str(err)) from None
@@ -314,6 +330,7 @@ def main(
             watchdog=watchdog or None,
             resume=not fresh,
             serve_goals=serve_goals,
+            goal_sessions=goal_sessions,
             web=page,
         )
     print_report(report)
@@ -410,6 +427,7 @@ def _robot(
                 journal=True,
                 resume=opts["resume"],
                 serve_goals=opts["serve_goals"],
+                goal_sessions=opts["goal_sessions"] or None,
                 web=opts["web"],
             )
         )

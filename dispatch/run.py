@@ -21,16 +21,15 @@ import logging
 import math
 import signal
 import time
-from collections.abc import Awaitable, Callable, Mapping
-from dataclasses import dataclass, field
+from collections.abc import Awaitable, Callable
 from pathlib import Path
 from typing import Any
 
 import trio
 
 from ..kb import KnowledgeBase
-from ..kb.jsonl import JsonlServer, SocketLimits
-from ..kb.service import register_kb
+from ..kb.jsonl import JsonlServer
+from ..kb.service import GOAL_OUTCOME_EVENT, notify_subscribers, register_kb
 from ..planners.base import ExternalPlanner, Planner, PlannerError, make_planner
 from ..server.app import (
     accept_connections,
@@ -40,154 +39,46 @@ from ..server.app import (
     play_connection,
     serve,
 )
-from ..server.config import DEFAULT_ACCEPT_RATE, ServerConfig
+from ..server.config import ServerConfig
 from ..server.limits import LISTEN_BACKLOG, AcceptPacer
 from ..server.session import Services, Session
-from .actions import Handlers
-from .clock import Clock, WallClock
-from .config import SensingConfig
 from .dispatcher import Dispatcher
+from .goals import GoalLedger
 from .journal import KBJournal
 from .remote import register_dispatch
-from .sensing import Sensing
+from .report import (
+    DEFAULT_GOAL_SESSIONS,
+    DEFAULT_ROUNDS,
+    LinkPolicy,
+    PlannerSpec,
+    RunReport,
+    kb_socket_limits,
+    server_config,
+    signal_exit_code,
+)
+from .robot import Robot, RobotFileError, build_robot, build_simulation, load_robot_file
 from .watchdog import LoopWatchdog
-from .world import PerAction, SimulatedWorld
 
 __all__ = [
+    "DEFAULT_GOAL_SESSIONS",
+    "DEFAULT_ROUNDS",
     "LinkPolicy",
     "PlannerSpec",
+    "Robot",
+    "RobotFileError",
     "RunReport",
+    "build_robot",
+    "build_simulation",
+    "load_robot_file",
     "dispatch_session",
+    "kb_socket_limits",
+    "server_config",
     "serve_dispatcher",
     "signal_exit_code",
     "simulate",
 ]
 
 log = logging.getLogger(__name__)
-
-#: Rounds a dispatcher session offers by default: when a round reaches the
-#: horizon without the goal, the next one goes on from where the robot is.
-DEFAULT_ROUNDS = 5
-
-
-@dataclass(frozen=True)
-class PlannerSpec:
-    """Which planner to start: a built-in by name (with its options) or PROST."""
-
-    name: str = "noop"
-    options: Mapping[str, str] = field(default_factory=dict)
-    prost: str | None = None  # PROST's search program (or its folder): use PROST
-    no_header: bool = False  # a built-in planner asks for no-header framing (as PROST does)
-    seed: int | None = None
-
-    @property
-    def label(self) -> str:
-        return "prost" if self.prost is not None else self.name
-
-
-@dataclass
-class RunReport:
-    """One dispatcher session, as `rddl-dispatch` reports it."""
-
-    instance: str
-    planner: str
-    goal_reached: bool
-    turns: int
-    rounds: int
-    reward: float  # the world's reward (simulated) or the dispatcher's (undiscounted sums)
-    executed: list[dict[str, Any]]
-    failed_actions: int
-    planning_seconds: float
-    execution_seconds: float  # on the dispatcher's clock (simulated seconds in the world)
-    replans: int
-    cost: float | None = None
-    contradictions: int = 0
-    session_status: str | None = None
-    seed: int | None = None
-    wall_seconds: float = 0.0
-    planner_error: str | None = None
-    dispatcher_reward: float = 0.0
-    sessions: list[str] = field(default_factory=list)  # each session's status, in order
-    planner_restarts: int = 0
-    interrupted: str | None = None  # the signal that ended the run
-    facts: list[list[Any]] = field(default_factory=list)  # the final knowledge, not-false
-    journaled: int | None = None  # batches journaled in the result store
-    executed_total: int | None = None  # actions over the run (`executed` keeps the last ones)
-    goals: list[dict[str, Any]] = field(default_factory=list)  # served goals' outcomes
-
-    @property
-    def success(self) -> bool:
-        return self.goal_reached
-
-    def as_dict(self) -> dict[str, Any]:
-        return {
-            "instance": self.instance,
-            "planner": self.planner,
-            "seed": self.seed,
-            "goal_reached": self.goal_reached,
-            "turns": self.turns,
-            "rounds": self.rounds,
-            "reward": self.reward,
-            "dispatcher_reward": self.dispatcher_reward,
-            "executed": self.executed,
-            "failed_actions": self.failed_actions,
-            "replans": self.replans,
-            "contradictions": self.contradictions,
-            "planning_seconds": self.planning_seconds,
-            "execution_seconds": self.execution_seconds,
-            "cost": self.cost,
-            "session_status": self.session_status,
-            "wall_seconds": self.wall_seconds,
-            "planner_error": self.planner_error,
-            "sessions": self.sessions,
-            "planner_restarts": self.planner_restarts,
-            "interrupted": self.interrupted,
-            "journaled": self.journaled,
-            "executed_total": self.executed_total
-            if self.executed_total is not None
-            else len(self.executed),
-            "facts": self.facts,
-            "goals": self.goals,
-        }
-
-    def plan_lines(self) -> list[str]:
-        """The executed plan, one line per action."""
-        return [
-            f"{e['turn']:>4}  {e['action']:<40} {e['outcome']}"
-            + (f"  ({e['message']})" if e.get("message") else "")
-            for e in self.executed
-        ]
-
-
-def server_config(
-    *,
-    host: str = "127.0.0.1",
-    port: int = 0,
-    rounds: int = DEFAULT_ROUNDS,
-    timeout: float = 0.0,
-    db: Path | None = None,
-    transcripts: Path | None = None,
-    individual_session: bool = True,
-    max_connections: int | None = None,
-    max_connections_per_address: int | None = None,
-    allow: tuple[str, ...] = (),
-    accept_rate: float = DEFAULT_ACCEPT_RATE,
-) -> ServerConfig:
-    """rddl-server's settings for a dispatcher (no budget enforced by
-    default; the listener's limits as rddl-server has them)."""
-    return ServerConfig(
-        host=host,
-        port=port,
-        rounds=rounds,
-        timeout=timeout,
-        individual_session=individual_session,
-        db=db,
-        transcripts=transcripts,
-        max_connections=max_connections,
-        max_connections_per_address=max_connections_per_address,
-        allow=tuple(allow),
-        accept_rate=accept_rate,
-    )
 
 
 async def serve_dispatcher(
@@ -276,39 +167,6 @@ async def run_planner(
     return await trio.to_thread.run_sync(play_builtin, abandon_on_cancel=True)
 
 
-@dataclass(frozen=True)
-class LinkPolicy:
-    """What the dispatcher does about its planner link.
-
-    `silence`: seconds the planner may stay silent while the dispatcher
-    waits for its message (a deadline on each receive, so a hung planner is
-    detected while it hangs); None: the session budget when there is one
-    (`ServerConfig.timeout`), else no limit; 0: no limit. `reconnect`: a
-    dropped session (the planner hung up, died, went silent, or sent what
-    cannot be read) is recorded `dropped` and the dispatcher waits for a
-    planner to connect again, going on from the knowledge base as it is;
-    False: the run ends there (its report says so). A planner the
-    dispatcher started (`--planner`, `--prost`) is started again after
-    `restart_delay` seconds, doubling up to `max_restart_delay` while
-    attempts keep failing without playing a turn."""
-
-    reconnect: bool = False
-    silence: float | None = None
-    restart_delay: float = 1.0
-    max_restart_delay: float = 30.0
-
-    def idle_timeout(self, config: ServerConfig) -> float | None:
-        if self.silence is not None:
-            return self.silence if self.silence > 0 else None
-        return config.timeout if config.timeout > 0 else config.idle_timeout
-
-
-#: Exit status of rddl-dispatch ended by a signal: 128 + the signal's number,
-#: as a shell reports it (130 for SIGINT, 143 for SIGTERM).
-def signal_exit_code(signum: int) -> int:
-    return 128 + signum
-
-
 class _Run:
     """The state one `dispatch_session` shares between its tasks."""
 
@@ -325,8 +183,12 @@ class _Run:
 
         self.planner_done = trio.Event()
         self.serving = False  # serve goals until stopped
-        self.goals: list[dict[str, Any]] = []  # each served goal's outcome
-        self.goal: dict[str, Any] | None = None  # the goal being served
+        self.ledger: GoalLedger | None = None  # every goal's outcome
+
+    @property
+    def goal(self) -> dict[str, Any] | None:
+        """The goal being pursued (its record), None when there is none."""
+        return self.ledger.current if self.ledger is not None else None
 
     def session_over(self, status: str | None) -> None:
         """A session ended with `status` (None: the run ends without one)."""
@@ -354,6 +216,7 @@ async def dispatch_session(
     journal: bool = False,
     resume: bool = True,
     serve_goals: bool = False,
+    goal_sessions: int | None = DEFAULT_GOAL_SESSIONS,
     stop: trio.Event | None = None,
     web: Callable[..., Awaitable[Any]] | None = None,
 ) -> RunReport:
@@ -378,7 +241,12 @@ async def dispatch_session(
     time with `kb.set_goal`, over the socket or from Python), a session
     serves it (the planner is started again for each); each goal's outcome
     is in the report's `goals`. A goal the session's rounds did not reach
-    is recorded and served again while it does not hold. Setting `stop`
+    is served again while it does not hold, up to `goal_sessions` sessions
+    (None: no limit); then it is abandoned (a WARNING) and the run waits
+    for another goal. Every goal posed, changed or removed during the run
+    gets one outcome (`ippc.dispatch.goals`): in the report's `goals`, in
+    the result store (`goal_outcomes`) and, to the socket's subscribers, as
+    a `kb.goal_outcome` event. Setting `stop`
     ends the run as a signal does (`interrupted` is then "stop"). `web`
     (`ippc.dispatch.web.web_task`) is started in the run's nursery with the
     dispatcher before the planner's socket listens: the web page."""
@@ -392,6 +260,24 @@ async def dispatch_session(
         run.serving = True
         link = dataclasses.replace(link, reconnect=True)
     svc = open_services(config, dispatcher, config.port)
+    sockets: list[JsonlServer] = []  # the knowledge base's, once it listens
+    store = svc.store
+
+    def record(outcome: dict[str, Any]) -> None:
+        if store is not None:
+            store.record_goal_outcome(dispatcher.name, outcome)
+
+    def notify(outcome: dict[str, Any]) -> None:
+        for socket in sockets:
+            notify_subscribers(socket, GOAL_OUTCOME_EVENT, {"outcome": outcome})
+
+    run.ledger = GoalLedger(
+        dispatcher,
+        serving=serve_goals,
+        max_sessions=goal_sessions if goal_sessions else None,
+        record=record,
+        notify=notify,
+    )
     kb_journal: KBJournal | None = None
     if journal and svc.store is not None:
         kb_journal = KBJournal(dispatcher.kb, svc.store, dispatcher.name)
@@ -399,9 +285,11 @@ async def dispatch_session(
             kb_journal.restore()
         kb_journal.start()
     try:
+        run.ledger.start()
         async with trio.open_nursery() as nursery:
             # warnings about the planner's sessions, counted per cause (rddl-server's)
             nursery.start_soon(svc.notices.run)
+            nursery.start_soon(dispatcher.notices.run)  # sensing against the model
             if svc.budget is not None:  # frees the readers' buffers of ended sessions
                 nursery.start_soon(svc.budget.run)
             if handle_signals:
@@ -442,6 +330,7 @@ async def dispatch_session(
                     raise ListenError(
                         "the knowledge base's socket, --kb-port", f"{config.host}:{kb_port}", err
                     ) from None
+                sockets.append(socket)
                 if on_kb_listening is not None:
                     on_kb_listening(bound)
             if web is not None:
@@ -478,6 +367,8 @@ async def dispatch_session(
 
             nursery.start_soon(finish)
     finally:
+        # (a run cancelled from outside, not ended by itself, was interrupted)
+        run.ledger.finish(interrupted=run.serving or run.interrupted is not None or not run.over)
         if kb_journal is not None:
             kb_journal.stop()
         reason = (
@@ -517,20 +408,7 @@ async def dispatch_session(
         facts=final_facts(dispatcher.kb),
         journaled=kb_journal.batches if kb_journal is not None else None,
         executed_total=stats.executed_total,
-        goals=list(run.goals),
-    )
-
-
-def kb_socket_limits(config: ServerConfig) -> SocketLimits:
-    """The knowledge base's socket's limits: the planner's port's --allow
-    and --accept-rate, its connection caps when given (else the socket's
-    own default, 64)."""
-    default = SocketLimits()
-    return SocketLimits(
-        max_connections=config.max_connections or default.max_connections,
-        max_connections_per_address=config.max_connections_per_address,
-        allow=config.allow,
-        accept_rate=config.accept_rate,
+        goals=list(run.ledger.outcomes),
     )
 
 
@@ -580,14 +458,15 @@ async def _sessions(
                 if run.serving and run.goal is None:
                     await _next_goal(dispatcher, run)
                 stream, key = await receive.receive()
+                served = run.goal  # the goal this session serves
                 playing: list[Session] = []
                 try:
                     session = await play_connection(svc, stream, started=playing.append)
                 except trio.Cancelled:
                     # stopped while the session said goodbye: a session that had
                     # ended (its record written) still counts for the goal served
-                    if run.serving and playing and playing[0].status in ("finished", "timeout"):
-                        _served(dispatcher, run, playing[0].status)
+                    if playing and playing[0].status in ("finished", "timeout"):
+                        _served(run, playing[0].status, served)
                     raise
                 finally:
                     table.remove(key)
@@ -596,8 +475,8 @@ async def _sessions(
                     # nothing): counted in the log, not a planner lost; the run goes on
                     continue
                 status = session.status if session.status != "open" else "dropped"
+                _served(run, status, served)
                 if run.serving:
-                    _served(dispatcher, run, status)
                     if status == "dropped" and run.attempt is not None:
                         run.attempt.cancel()
                     run.session_over(status)
@@ -626,18 +505,13 @@ async def _sessions(
         nursery.cancel_scope.cancel()
 
 
-def _goal_text(kb: KnowledgeBase) -> str | None:
-    goal = kb.goal()
-    if goal is None:
-        return None
-    return goal.text or " ^ ".join(str(f) for f in goal.facts) or goal.fluent
-
-
 async def _next_goal(dispatcher: Dispatcher, run: _Run) -> None:
-    """Wait until the knowledge base has a goal that does not hold (a new
-    one set at run time, or the state changed under the old one), and start
-    serving it."""
+    """Wait until the knowledge base has a goal to serve (one that does
+    not hold and was not abandoned: a new one set at run time, or the state
+    changed under the old one), and start serving it."""
     kb = dispatcher.kb
+    ledger = run.ledger
+    assert ledger is not None
     token = trio.lowlevel.current_trio_token()
     wake = trio.Event()
 
@@ -650,7 +524,8 @@ async def _next_goal(dispatcher: Dispatcher, run: _Run) -> None:
     unsubscribe = [kb.subscribe(poke), kb.subscribe_goal(poke)]
     try:
         waited = False
-        while not (kb.goal() is not None and kb.goal_holds() is False):
+        # (a goal posed meanwhile is opened by the ledger itself)
+        while ledger.current is None and not ledger.wanted(kb.goal()):
             if not waited:
                 log.info("serving goals: waiting for a goal that does not hold yet (kb.set_goal)")
                 waited = True
@@ -659,55 +534,21 @@ async def _next_goal(dispatcher: Dispatcher, run: _Run) -> None:
     finally:
         for stop in unsubscribe:
             stop()
-    goal = kb.goal()
-    stats = dispatcher.stats
-    stats.goal_reached = False
-    run.goal = {
-        "goal": _goal_text(kb),
-        "version": goal.version if goal is not None else None,
-        "reached": False,
-        "sessions": [],
-        "turns": 0,
-        "actions": 0,
-        "failed_actions": 0,
-        "_turns0": stats.turns,
-        "_actions0": stats.executed_total,
-        "_failed0": stats.failed_actions,
-        "_t0": time.time(),
-    }
-    log.info("serving goal %s (version %s)", run.goal["goal"], run.goal["version"])
+    if ledger.current is None:
+        goal = kb.goal()
+        assert goal is not None
+        ledger.open(goal)
+    dispatcher.stats.goal_reached = False
+    if ledger.current is not None:
+        log.info("serving goal %s (version %s)", ledger.current["goal"], ledger.current["version"])
 
 
-def _served(dispatcher: Dispatcher, run: _Run, status: str) -> None:
-    """A session of the goal being served ended: its outcome, once the goal
-    is reached or the session played out (a dropped one is tried again)."""
-    goal = run.goal
-    if goal is None:
-        return
-    stats = dispatcher.stats
-    goal["sessions"].append(status)
-    if status == "dropped":
-        return
-    reached = bool(stats.goal_reached or dispatcher.kb.goal_holds())
-    outcome = {k: v for k, v in goal.items() if not k.startswith("_")}
-    outcome.update(
-        reached=reached,
-        turns=stats.turns - goal["_turns0"],
-        actions=stats.executed_total - goal["_actions0"],
-        failed_actions=stats.failed_actions - goal["_failed0"],
-        seconds=round(time.time() - goal["_t0"], 3),
-    )
-    run.goals.append(outcome)
-    run.goal = None
-    log.info(
-        "goal %s %s: %d turns, %d actions (%d failed), %d session(s)",
-        outcome["goal"],
-        "reached" if reached else "not reached (it is served again while it does not hold)",
-        outcome["turns"],
-        outcome["actions"],
-        outcome["failed_actions"],
-        len(outcome["sessions"]),
-    )
+def _served(run: _Run, status: str, served: dict[str, Any] | None) -> None:
+    """A session of the goal being pursued ended: the ledger records its
+    outcome once the goal is reached or has had its sessions (a dropped
+    one is tried again)."""
+    if run.ledger is not None:
+        run.ledger.session_ended(status, served)
 
 
 async def _planner_loop(
@@ -757,6 +598,7 @@ async def _play_planner(
                 log.error("planner %s raised", spec.label, exc_info=True)
                 error = f"the planner raised {type(err).__name__}: {err}"
         run.attempt = None
+        ended_at = trio.current_time()  # the restart delay counts from here
         if attempt.cancelled_caught and error is None:
             error = "stopped: its session dropped"
         run.last_error = error
@@ -783,13 +625,18 @@ async def _play_planner(
                 delay = link.restart_delay
                 continue
         run.restarts += 1
+        # (the wait for its session's end, above, counts towards the delay:
+        # the log says when the planner really starts again)
+        waited = trio.current_time() - ended_at
+        left = max(0.0, delay - waited)
         log.warning(
-            "planner %s ended (%s): starting it again in %g s",
+            "planner %s ended (%s): starting it again in %.1f s (%.1f s after it ended)",
             spec.label,
             error or "its session dropped",
-            delay,
+            left,
+            waited + left,
         )
-        await trio.sleep(delay)
+        await trio.sleep(left)
         delay = min(delay * 2, link.max_restart_delay)
 
 
@@ -818,33 +665,6 @@ async def _logged_task(fn: Callable[..., Awaitable[Any]], args: tuple[Any, ...])
         log.info("robot task %s ended", name)
 
 
-@dataclass
-class Robot:
-    """What a robot file's `setup(robot)` wires up: handlers by action name
-    (`robot.handler("goto")` as a decorator, or `robot.handlers.register`),
-    sensor sources (`robot.sensing.publisher(stream)`, or a task started with
-    `robot.start_soon(fn, *args)` that feeds them), and the knowledge base."""
-
-    kb: KnowledgeBase
-    handlers: Handlers
-    sensing: Sensing | None
-    clock: Clock
-    tasks: list[tuple[Callable[..., Awaitable[Any]], tuple[Any, ...]]] = field(default_factory=list)
-
-    def handler(self, action: str) -> Callable[[Any], Any]:
-        """Register the decorated async function as `action`'s handler."""
-
-        def register(fn: Any) -> Any:
-            self.handlers.register(action, fn)
-            return fn
-
-        return register
-
-    def start_soon(self, fn: Callable[..., Awaitable[Any]], *args: Any) -> None:
-        """Run `fn(*args)` while the dispatcher runs (a sensor source)."""
-        self.tasks.append((fn, args))
-
-
 class ListenError(OSError):
     """A socket of the dispatcher that cannot listen; `what` says which
     (the planner's, the knowledge base's), `where` the address asked for."""
@@ -856,75 +676,6 @@ class ListenError(OSError):
 
     def __str__(self) -> str:
         return f"cannot listen on {self.where} ({self.what}): {self.strerror}"
-
-
-class RobotFileError(ValueError):
-    """A robot file that cannot be loaded; the message says why."""
-
-
-def _place(path: Path, err: BaseException) -> str:
-    """``file:line`` of the last frame of `err`'s traceback that is in the
-    robot file (where its code went wrong), else the file's name."""
-    import traceback
-
-    target = str(path.resolve())
-    line = None
-    for frame in traceback.extract_tb(err.__traceback__):
-        if frame.filename and str(Path(frame.filename).resolve()) == target:
-            line = frame.lineno
-    return f"{path}:{line}" if line is not None else str(path)
-
-
-def load_robot_file(path: str | Path) -> Callable[[Robot], Any]:
-    """The `setup(robot)` function of a Python file."""
-    import importlib.util
-
-    path = Path(path)
-    spec = importlib.util.spec_from_file_location(f"ippc_robot_{path.stem}", path)
-    if spec is None or spec.loader is None:
-        raise RobotFileError(f"{path}: not a Python file")
-    module = importlib.util.module_from_spec(spec)
-    try:
-        spec.loader.exec_module(module)
-    except FileNotFoundError:
-        raise RobotFileError(f"{path}: no such file") from None
-    except SyntaxError as err:
-        where = f"{path}:{err.lineno or 1}:{err.offset or 1}"
-        raise RobotFileError(f"{where}: SyntaxError: {err.msg}") from None
-    except Exception as err:
-        raise RobotFileError(f"{_place(path, err)}: {type(err).__name__}: {err}") from err
-    setup = getattr(module, "setup", None)
-    if not callable(setup):
-        raise RobotFileError(f"{path}: defines no setup(robot) function")
-    return setup  # type: ignore[no-any-return]
-
-
-def build_robot(
-    kb: KnowledgeBase,
-    config: SensingConfig | None,
-    *,
-    robot_file: str | Path | None = None,
-    action_timeout: float | None = 60.0,
-    settle_limit: float = 2.0,
-    stop_at_goal: bool = True,
-) -> tuple[Robot, Dispatcher]:
-    """A dispatcher on the wall clock with sensing from `config` and the
-    handlers and sensor sources a robot file's `setup(robot)` registers."""
-    clock = WallClock()
-    sensing = Sensing(kb, config, clock=clock) if config is not None else None
-    handlers = Handlers(clock=clock, timeout=action_timeout)
-    robot = Robot(kb, handlers, sensing, clock)
-    if robot_file is not None:
-        setup = load_robot_file(robot_file)
-        try:
-            setup(robot)
-        except Exception as err:
-            where = _place(Path(robot_file), err)
-            raise RobotFileError(f"{where}: setup failed: {type(err).__name__}: {err}") from err
-    dispatcher = Dispatcher(
-        kb, handlers, sensing, clock=clock, settle_limit=settle_limit, stop_at_goal=stop_at_goal
-    )
-    return robot, dispatcher
 
 
 def executed_plan(db: str | Path, session: int | None = None) -> list[dict[str, Any]]:
@@ -970,40 +721,6 @@ def _plan_of(store: Any, session: int) -> list[dict[str, Any]] | None:
     return plan if dispatched else None
 
 
-def build_simulation(
-    kb: KnowledgeBase,
-    seed: int = 0,
-    *,
-    durations: PerAction = 1.0,
-    costs: PerAction | None = None,
-    failures: Any = None,
-    sensed: Any = None,
-    exogenous: Any = None,
-    observe: Any = None,
-    action_timeout: float | None = 60.0,
-    stop_at_goal: bool = True,
-) -> tuple[SimulatedWorld, Dispatcher]:
-    """The simulated world and a dispatcher wired to it (sensing reads the
-    world's streams; the world's handlers execute every action)."""
-    world = SimulatedWorld(
-        kb.model,
-        seed,
-        sensed=sensed,
-        durations=durations,
-        costs=costs,
-        failures=failures,
-        exogenous=exogenous,
-        observe=observe,
-    )
-    clock: Clock = world.clock
-    sensing = Sensing(kb, world.sensing_config(), clock=clock)
-    world.connect(sensing.feed)
-    sensing.flush()  # what the sensors see at the start is known before the first turn
-    handlers: Handlers = world.handlers(timeout=action_timeout)
-    dispatcher = Dispatcher(kb, handlers, sensing, clock=clock, stop_at_goal=stop_at_goal)
-    return world, dispatcher
-
-
 async def simulate_async(
     domain: str | Path,
     instance: str | Path,
@@ -1017,13 +734,28 @@ async def simulate_async(
     timeout: float = 0.0,
     handle_signals: bool = False,
     web: Callable[..., Awaitable[Any]] | None = None,
+    resume: bool = True,
     **world: Any,
 ) -> RunReport:
     """`simulate`, inside a trio run. `timeout` is the session budget in
     seconds (0: none; time-allowed is then rddlsim's default, 1080 s), which
-    PROST spreads over its steps."""
+    PROST spreads over its steps. With `db`, the knowledge base is
+    journaled there as in a robot's run and, with `resume`, a run starts
+    from the facts journaled for its instance: the simulated world starts
+    in that state too (where the last run left the robot)."""
     kb = KnowledgeBase.from_files(domain, instance)
+    restored = 0
+    if db is not None and resume:
+        from ..server.store import ResultStore
+
+        with ResultStore(db) as store:
+            restored = KBJournal(kb, store, kb.model.name).restore()
     the_world, dispatcher = build_simulation(kb, seed, **world)
+    if restored:
+        the_world.resume(kb.to_state())
+        log.info(
+            "simulated world: resumed from %d journaled batch(es) of %s", restored, kb.model.name
+        )
     spec = planner or PlannerSpec()
     config = server_config(rounds=rounds, db=db, transcripts=transcripts, timeout=timeout)
     config = ServerConfig(**{**config.__dict__, "seed": seed})
@@ -1035,6 +767,8 @@ async def simulate_async(
         planner_timeout=planner_timeout,
         planner_in_loop=True,
         handle_signals=handle_signals,
+        journal=db is not None,
+        resume=False,  # (restored above, before the world was built)
         web=web,
     )
     report.reward = the_world.reward
@@ -1046,7 +780,7 @@ def simulate(domain: str | Path, instance: str | Path, **options: Any) -> RunRep
     """One whole simulated run (world, sensing, knowledge base, dispatcher,
     planner, handlers): the report of the session. `options` are those of
     `simulate_async`: `seed`, `planner` (a `PlannerSpec`), `rounds`, `db`,
-    `transcripts`, `planner_timeout`, `timeout`, `web`, and the world's `durations`, `costs`,
+    `transcripts`, `planner_timeout`, `timeout`, `web`, `resume`, and the world's `durations`, `costs`,
     `failures`, `sensed`, `exogenous`, `observe`, `action_timeout`,
     `stop_at_goal` (see `SimulatedWorld`)."""
     return trio.run(functools.partial(simulate_async, domain, instance, **options))

@@ -125,6 +125,12 @@ class SimulatedWorld:
         self._turn: int | None = None
         self._results: dict[GroundAction, Result] = {}
 
+    def resume(self, state: State) -> None:
+        """Go on from `state` (a restarted run's, journaled): the world is
+        there now, and its sensors see it as the start."""
+        self.state = state
+        self._initial = state
+
     # -- wiring
 
     def sensing_config(self, rate: float = 10.0) -> SensingConfig:

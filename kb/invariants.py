@@ -26,17 +26,21 @@ when the knowledge base is built and not checked.
 from __future__ import annotations
 
 import logging
-from collections.abc import Callable, Collection
+from collections.abc import Callable, Collection, Mapping
 from dataclasses import dataclass
 
 from ..rddl import ast as A
-from ..rddl.model import Model
+from ..rddl.model import STATE, Model, Value
 from ..rddl.writer import write_expr
 from .evaluate import Evaluator, Lookup, NotEvaluable
 
 log = logging.getLogger(__name__)
 
 __all__ = ["Invariants", "Violation"]
+
+# boolean atoms a grounding may read besides a goal's, all of whose values
+# `Invariants.impossible` tries (2**MAX_FREE evaluations at most)
+MAX_FREE = 10
 
 
 @dataclass(frozen=True)
@@ -150,6 +154,87 @@ class Invariants:
                 if len(out) >= limit:
                     return out
         return out
+
+    def impossible(
+        self,
+        fixed: Mapping[tuple[str, tuple[str, ...]], Value],
+        lookup: Lookup,
+        free: Callable[[str], bool],
+        limit: int = 5,
+    ) -> list[Violation]:
+        """The groundings that no state with the values of `fixed` (a
+        goal's facts) satisfies, as far as can be told: each grounding that
+        reads a fixed value is tried with every value of the other boolean
+        atoms it reads (`free(fluent)`: a boolean state fluent), up to
+        MAX_FREE of them; one that reads a free numeric or enum fluent, or
+        more atoms, is never called impossible. `lookup` gives the rest
+        (the non-fluents)."""
+        names = {name for name, _ in fixed}
+        out: list[Violation] = []
+        for piece in self.pieces:
+            if piece.reads.isdisjoint(names):
+                continue
+            probe = Evaluator(self.model, lookup, self._stored)
+            for env in probe.bindings(piece.params, {}):
+                if self._unsatisfiable(piece, env, fixed, lookup, free):
+                    binding = tuple((tv.name, env[tv.name]) for tv in piece.params)
+                    out.append(Violation(piece.invariant.loc, write_expr(piece.invariant), binding))
+                    if len(out) >= limit:
+                        return out
+        return out
+
+    def _unsatisfiable(
+        self,
+        piece: Piece,
+        env: dict[str, str],
+        fixed: Mapping[tuple[str, tuple[str, ...]], Value],
+        lookup: Lookup,
+        free: Callable[[str], bool],
+    ) -> bool:
+        atoms: list[tuple[str, tuple[str, ...]]] = []
+        while True:
+            grown = False
+            read_fixed = False
+            for bits in range(1 << len(atoms)):
+                assign = {a: bool(bits >> i & 1) for i, a in enumerate(atoms)}
+                found: list[tuple[str, tuple[str, ...]]] = []
+                undecidable = False
+
+                def look(
+                    fluent: str,
+                    args: tuple[str, ...],
+                    assign: dict[tuple[str, tuple[str, ...]], bool] = assign,
+                    found: list[tuple[str, tuple[str, ...]]] = found,
+                ) -> Value:
+                    nonlocal read_fixed, undecidable
+                    key = (fluent, tuple(args))
+                    if key in fixed:
+                        read_fixed = True
+                        return fixed[key]
+                    if key in assign:
+                        return assign[key]
+                    p = self.model.pvariables.get(fluent)
+                    if p is not None and p.kind == STATE:
+                        if free(fluent):
+                            found.append(key)
+                        else:
+                            undecidable = True
+                    return lookup(fluent, args)
+
+                holds = _holds(Evaluator(self.model, look, self._stored), piece.body, env)
+                if undecidable:
+                    return False
+                new = [k for k in dict.fromkeys(found) if k not in assign]
+                if new:
+                    atoms += new
+                    if len(atoms) > MAX_FREE:
+                        return False
+                    grown = True
+                    break
+                if holds is not False:
+                    return False  # a state with the goal's values satisfies it
+            if not grown:
+                return read_fixed
 
     def violated(self, lookup: Lookup, limit: int = 5) -> list[Violation]:
         """The groundings that do not hold under `lookup` (at most `limit`)."""

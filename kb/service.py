@@ -24,6 +24,17 @@ from .store import Change, Update
 SUBSCRIPTION = "kb.subscription"  # key of a connection's subscription in Connection.state
 CHANGED_EVENT = "kb.changed"
 GOAL_EVENT = "kb.goal_changed"
+# a goal's outcome, once recorded (rddl-dispatch: reached, abandoned, removed, interrupted)
+GOAL_OUTCOME_EVENT = "kb.goal_outcome"
+GOAL_SUBSCRIPTION = "kb.goal_subscription"  # set in Connection.state when it hears of goals
+
+
+def notify_subscribers(server: JsonlServer, event: str, fields: dict[str, Any]) -> None:
+    """Send `event` to the connections subscribed to goal events
+    (`kb.subscribe` with `goal` true, the default)."""
+    for conn in list(server.connections):
+        if conn.state.get(GOAL_SUBSCRIPTION):
+            conn.send_event(event, fields)
 
 
 def _param(
@@ -214,12 +225,14 @@ def register_kb(server: JsonlServer, kb: KnowledgeBase) -> None:
                 stop_goal()
 
         conn.state[SUBSCRIPTION] = stop
+        conn.state[GOAL_SUBSCRIPTION] = goals
         return {"subscribed": sorted(wanted) if wanted is not None else "all"}
 
     @method("kb.unsubscribe")
     def unsubscribe(params: dict[str, Any], conn: Connection) -> Any:
         """stop the kb.changed events of this connection"""
         old = conn.state.pop(SUBSCRIPTION, None)
+        conn.state.pop(GOAL_SUBSCRIPTION, None)
         if old is not None:
             old()
         return {"subscribed": old is not None}

@@ -52,6 +52,9 @@ def open_services(
     from .store import ResultStore
 
     store = ResultStore(config.db, owner=owner) if config.db is not None else None
+    if store is not None:
+        # sessions a killed process of this host left open: closed as killed
+        store.close_killed(time.time())
     if live is not None:
         store = live.wrap(store)
     rlog = (

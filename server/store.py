@@ -71,10 +71,10 @@ log = logging.getLogger(__name__)
 #: 2: ``outcome`` and ``execution_seconds`` in ``steps``, for rddl-dispatch; 3: rddl-batch's
 #: ``jobs``; 4: rddl-dispatch's ``kb_batches`` and ``kb_facts``). An older file is upgraded in
 #: place when opened.
-SCHEMA_VERSION = 4
+SCHEMA_VERSION = 5
 
 #: Final statuses of a session (``open`` while it runs).
-SESSION_STATUSES = frozenset({"finished", "timeout", "dropped", "interrupted"})
+SESSION_STATUSES = frozenset({"finished", "timeout", "dropped", "interrupted", "killed"})
 #: Final statuses of a round (``open`` while it runs).
 ROUND_STATUSES = frozenset(
     {"finished", "terminal", "illegal-action", "timeout", "dropped", "interrupted"}
@@ -94,7 +94,7 @@ CREATE TABLE IF NOT EXISTS sessions (
     started_at        REAL    NOT NULL,   -- unix seconds
     ended_at          REAL,
     status            TEXT    NOT NULL DEFAULT 'open' CHECK (status IN
-                      ('open', 'finished', 'timeout', 'dropped', 'interrupted')),
+                      ('open', 'finished', 'timeout', 'dropped', 'interrupted', 'killed')),
     total_reward      REAL,
     rounds_used       INTEGER,
     reason            TEXT,
@@ -180,6 +180,21 @@ CREATE TABLE IF NOT EXISTS kb_facts (
     PRIMARY KEY (instance, fluent, args)
 );
 """,
+    # (and, in _create_schema, 'killed' among the sessions' statuses)
+    5: """
+CREATE TABLE IF NOT EXISTS goal_outcomes (
+    id          INTEGER PRIMARY KEY,
+    instance    TEXT    NOT NULL,         -- the dispatcher's instance name
+    goal        TEXT,                     -- the goal, one line
+    version     INTEGER,                  -- the knowledge base's goal version
+    outcome     TEXT    NOT NULL CHECK (outcome IN
+                ('reached', 'abandoned', 'removed', 'interrupted')),
+    turn        INTEGER,                  -- the run's turn when reached
+    recorded_at REAL    NOT NULL,         -- unix seconds
+    detail      TEXT    NOT NULL          -- JSON: the whole outcome as the report has it
+);
+CREATE INDEX IF NOT EXISTS goal_outcomes_by_instance ON goal_outcomes(instance, id);
+""",
 }
 
 Fluent = tuple[str, tuple[str, ...], object]
@@ -222,6 +237,42 @@ def _real(x: object) -> float:
 
 def _opt_real(x: object | None) -> float | None:
     return None if x is None else _real(x)
+
+
+def _allow_killed(cur: sqlite3.Cursor) -> None:
+    """Add 'killed' to the sessions' status CHECK of a store made before
+    schema 5: SQLite cannot alter a CHECK, and rebuilding the table would
+    break the rounds' references to it, so the table's stored definition
+    is edited, as SQLite's documentation describes for CHECK changes."""
+    old = "'dropped', 'interrupted'))"
+    new = "'dropped', 'interrupted', 'killed'))"
+    cur.execute("PRAGMA writable_schema = ON")
+    cur.execute(
+        "UPDATE sqlite_master SET sql = replace(sql, ?, ?)"
+        " WHERE type = 'table' AND name = 'sessions' AND instr(sql, 'killed') = 0",
+        (old, new),
+    )
+    version = cur.execute("PRAGMA schema_version").fetchone()[0]
+    cur.execute(f"PRAGMA schema_version = {int(version) + 1}")
+    cur.execute("PRAGMA writable_schema = OFF")
+
+
+def _owner_is_dead(owner: str, host: str) -> bool:
+    """Whether a store's owner token ("host:pid:tag", a worker's "host:pid:tag:wN") names a process of
+    `host` that no longer runs."""
+    parts = owner.split(":")
+    if len(parts) < 3 or parts[0] != host or not parts[1].isdigit():
+        return False
+    pid = int(parts[1])
+    if pid == os.getpid():
+        return False
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return True
+    except PermissionError:
+        return False  # alive, another user's
+    return False
 
 
 class StoreError(RuntimeError):
@@ -315,6 +366,8 @@ class ResultStore:
                     for statement in script.split(";"):
                         if statement.strip():
                             cur.execute(statement)
+                if 1 <= version < 5:
+                    _allow_killed(cur)
                 if version >= 1:
                     log.info(
                         "result store %s: schema %d migrated to %d",
@@ -323,6 +376,63 @@ class ResultStore:
                         SCHEMA_VERSION,
                     )
                 cur.execute(f"PRAGMA user_version = {SCHEMA_VERSION}")
+
+    def close_killed(self, ended_at: float) -> int:
+        """Mark as ``killed`` the open sessions of this host's processes that
+        no longer run (a process killed with -9 never closed them; the owner
+        token names its host and process id), with their open rounds (as
+        ``interrupted``); the number marked. Sessions of other hosts, and of
+        owners named otherwise, are left as they are."""
+        host = socket.gethostname()
+        with self._tx() as cur:
+            rows = cur.execute("SELECT id, owner FROM sessions WHERE status = 'open'").fetchall()
+            dead = [sid for sid, owner in rows if _owner_is_dead(str(owner), host)]
+            for sid in dead:
+                cur.execute(
+                    "UPDATE sessions SET status = 'killed', ended_at = ?, reason = ? WHERE id = ?",
+                    (
+                        _real(ended_at),
+                        "the process that played it ended without closing it (killed)",
+                        sid,
+                    ),
+                )
+                self._close_open_rounds(cur, "session_id = ?", (sid,), "interrupted", ended_at)
+        if dead:
+            log.warning(
+                "result store %s: %d session(s) left open by a killed process marked as killed",
+                self.path,
+                len(dead),
+            )
+        return len(dead)
+
+    def record_goal_outcome(self, instance: str, outcome: dict[str, Any]) -> int:
+        """Record one goal's outcome (`ippc.dispatch.goals`): its row id."""
+        with self._tx() as cur:
+            cur.execute(
+                "INSERT INTO goal_outcomes"
+                " (instance, goal, version, outcome, turn, recorded_at, detail)"
+                " VALUES (?, ?, ?, ?, ?, ?, ?)",
+                (
+                    str(instance),
+                    outcome.get("goal"),
+                    outcome.get("version"),
+                    str(outcome["outcome"]),
+                    outcome.get("turn"),
+                    _real(outcome.get("recorded_at", time.time())),
+                    _ENCODER.encode(outcome),
+                ),
+            )
+            return int(cur.lastrowid or 0)
+
+    def goal_outcomes(self, instance: str | None = None) -> list[dict[str, Any]]:
+        """The recorded goal outcomes (of `instance`, or all), oldest first,
+        each the outcome as the report has it."""
+        sql = "SELECT detail FROM goal_outcomes"
+        params: tuple[Any, ...] = ()
+        if instance is not None:
+            sql += " WHERE instance = ?"
+            params = (str(instance),)
+        return [json.loads(r["detail"]) for r in self._rows(sql + " ORDER BY id", params)]
 
     @contextmanager
     def _tx(self) -> Iterator[sqlite3.Cursor]:

@@ -461,7 +461,7 @@ def test_a_version_1_database_is_upgraded_in_place(tmp_path: Path) -> None:
         )
         assert store.steps(rid)[1]["outcome"] == {"goal": True}
     conn = sqlite3.connect(path)
-    assert conn.execute("PRAGMA user_version").fetchone()[0] == SCHEMA_VERSION == 4
+    assert conn.execute("PRAGMA user_version").fetchone()[0] == SCHEMA_VERSION == 5
     conn.close()
 
 
