@@ -60,6 +60,7 @@ from ..rddl.model import DERIVED, INTERM, STATE, Model, PVariable, Value
 from ..rddl.simulator import SimulationError, Simulator, State
 from ..rddl.wire import WireCodec, WireFluent
 from ..server.environment import Environment, Episode, Outcome, decode_actions
+from ..server.limits import Notices
 from ..server.registry import UnknownInstance, build_task
 from .actions import Dispatch, GroundAction, Handlers, Result, Status, parameter_keys
 from .clock import Clock, WallClock
@@ -252,6 +253,9 @@ class Dispatcher(Environment):
         self.codec = WireCodec(self.sim)
         self.draw_free = draw_free_fluents(model)
         self.stats = DispatchStats()
+        # warnings about sensing that contradicts the model, once per cause
+        # and then counted (flushed by `notices.run` in a dispatcher's run)
+        self.notices = Notices(log)
         self._writer: ObservedFluentsWriter | None = None
         self._next_id = 0
         self._keys = {p.name: parameter_keys(model, p.name) for p in self.sim.action_fluents}
@@ -476,7 +480,7 @@ class DispatchEpisode(Episode):
         sensed = 0
         if d.sensing is not None:
             sensed = len(await d.sensing.settle(d.settle_limit))
-        contradictions = self._contradictions(expected) if expected is not None else []
+        contradictions = self._contradictions(expected, succeeded) if expected is not None else []
         seconds = d.clock.now() - started
         stats.execution_seconds += seconds
         stats.reward += reward
@@ -548,14 +552,38 @@ class DispatchEpisode(Episode):
                     nursery.start_soon(one, a)
         return results
 
-    def _contradictions(self, expected: State) -> list[dict[str, Any]]:
+    def _contradictions(
+        self, expected: State, succeeded: Sequence[GroundAction]
+    ) -> list[dict[str, Any]]:
         """Sensed groundings the model knew the value of, that sensing says
-        otherwise."""
+        otherwise (the robot sensed in a room no transition reaches): one
+        WARNING per turn with what was sensed and what the model allowed,
+        repeated ones counted (`Dispatcher.notices`)."""
         d = self.d
         out: list[dict[str, Any]] = []
         sensed = [n for n in sorted(d.draw_free) if d.kb.is_sensed(n)]
         if not sensed:
             return out
+        now = d.kb.to_state()
+        for up in d.changes(now, expected, sensed):
+            got = d.kb.get(up.fluent, up.args)
+            out.append(
+                {"fluent": up.fluent, "args": list(up.args), "expected": up.value, "sensed": got}
+            )
+        if out:
+
+            def show(c: dict[str, Any], key: str) -> str:
+                return f"{c['fluent']}({', '.join(c['args'])}) = {_text(c[key])}"
+
+            after = ", ".join(str(a) for a in succeeded) or "no action"
+            d.notices.note(
+                "turns where sensing contradicts the model's transitions",
+                f"turn {self.turn_num}: sensing contradicts the model after {after}: sensed "
+                + ", ".join(show(c, "sensed") for c in out)
+                + "; the model allowed "
+                + ", ".join(show(c, "expected") for c in out),
+            )
+        return out
         now = d.kb.to_state()
         for up in d.changes(now, expected, sensed):
             got = d.kb.get(up.fluent, up.args)
@@ -570,3 +598,12 @@ class DispatchEpisode(Episode):
                 got,
             )
         return out
+
+
+def _text(value: Any) -> str:
+    """A value as RDDL writes it (true/false, numbers, enum values)."""
+    if value is True:
+        return "true"
+    if value is False:
+        return "false"
+    return str(value)

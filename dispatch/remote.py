@@ -4,8 +4,11 @@ A controller in any language connects to the socket that serves the
 knowledge base (`ippc.kb.jsonl`, the `kb.*` methods) and also finds there:
 
 * ``sensing.publish`` ``{"stream": "odometry", "msg": {...}}``: one sensor
-  message, evaluated as an in-process one (`Sensing.feed`); the result is
-  ``{"changed": n}``, the groundings whose value it changed;
+  message, evaluated as an in-process one and sent to the knowledge base at
+  once (`Sensing.publish`); the result says what the knowledge base
+  accepted and what was refused (by the sensor, or by the knowledge base: a
+  broken state invariant): ``{"changed": n, "accepted": [{fluent, args,
+  value}], "refused": [{fluent, args, value, reason}]}``;
 * ``sensing.streams``: the streams some sensor reads;
 * ``handlers.register`` ``{"actions": ["move", "pickup"]}``: this connection
   handles these actions (an action name, ``"*"`` or ``"noop"``). Each
@@ -171,10 +174,9 @@ def register_dispatch(
         if "msg" not in params:
             raise RequestError("bad-params", "'msg' (the message) is missing")
         try:
-            changed = sensing.feed(stream, params["msg"])
+            return sensing.publish(stream, params["msg"])
         except SensingError as err:
             raise RequestError("unknown-stream", str(err)) from None
-        return {"changed": changed}
 
     def streams(params: dict[str, Any], conn: Connection) -> list[str]:
         """sensing.streams: the streams some sensor reads."""

@@ -238,6 +238,8 @@ class Sensing:
         for fluent in sorted(config.fluents()):
             kb.set_sensed(fluent, True)
         self._unsubscribe = kb.subscribe(self._on_change)
+        # what one `publish` call kept and what was refused, while it runs
+        self._collect: dict[str, list[Any]] | None = None
 
     # -- messages in
 
@@ -270,11 +272,39 @@ class Sensing:
                     changed += 1
         return changed
 
+    def publish(self, stream: str, msg: Any) -> dict[str, Any]:
+        """Feed one message of `stream` and send what it changed to the
+        knowledge base at once (with whatever else waits): what the
+        knowledge base accepted (`accepted`: fluent, args, value) and what
+        was refused, by the sensor or the knowledge base (`refused`: fluent,
+        args or grounding, value when there is one, reason). `changed` is
+        the number accepted. A stream no sensor reads raises SensingError."""
+        collect: dict[str, list[Any]] = {"kept": [], "refused": []}
+        self._collect = collect
+        try:
+            self.feed(stream, msg)
+            self.flush()
+        finally:
+            self._collect = None
+        refused = collect["refused"]
+        gone = {(r["fluent"], tuple(r.get("args", ()))) for r in refused if "args" in r}
+        accepted = []
+        for (fluent, args), value in dict(collect["kept"]).items():
+            if (fluent, args) in gone:
+                continue
+            if self.kb.get(fluent, args) == value:
+                accepted.append({"fluent": fluent, "args": list(args), "value": value})
+        return {"changed": len(accepted), "accepted": accepted, "refused": refused}
+
     def _refuse(
         self, stream: str, spec: SensorSpec, err: Exception, grounding: str | None = None
     ) -> None:
         kind = getattr(err, "kind", "bad message")
         grounding = grounding or getattr(err, "grounding", None)
+        if self._collect is not None:
+            self._collect["refused"].append(
+                {"fluent": spec.fluent, "grounding": grounding or spec.fluent, "reason": str(err)}
+            )
         text = f"{spec.where}: {spec.fluent} from stream {stream!r}: {err}"
         self.errors.append(text)
         self.refused[stream] += 1
@@ -401,6 +431,8 @@ class Sensing:
         self._pending[key] = value
         self._origin[key] = stream
         self.activity += 1
+        if self._collect is not None:
+            self._collect["kept"].append((key, value))
         return True
 
     # -- values out
@@ -425,7 +457,7 @@ class Sensing:
                 by_stream[origin.get(key, "?")].append(key)
             if len(by_stream) == 1:
                 ((stream, keys),) = by_stream.items()
-                self._refuse_batch(stream, keys, err)
+                self._refuse_batch(stream, keys, err, pending)
                 return []
             # one stream's contradiction must not hold up the others' values
             changes = []
@@ -433,7 +465,7 @@ class Sensing:
                 try:
                     changes += self.kb.apply(self._updates({k: pending[k] for k in keys}), SOURCE)
                 except KBError as one:
-                    self._refuse_batch(stream, keys, one)
+                    self._refuse_batch(stream, keys, one, pending)
         if changes:
             self.batches += 1
         return changes
@@ -442,12 +474,23 @@ class Sensing:
     def _updates(values: Mapping[Key, Value]) -> list[Update]:
         return [Update("set", f, args, v) for (f, args), v in values.items()]
 
-    def _refuse_batch(self, stream: str, keys: list[Key], err: KBError) -> None:
+    def _refuse_batch(
+        self, stream: str, keys: list[Key], err: KBError, values: Mapping[Key, Value]
+    ) -> None:
         """The knowledge base refused `stream`'s values (a broken state
         invariant): dropped, and forgotten as sensed (so they are not sent
         again when someone else writes those groundings)."""
         for key in keys:
             self._last.pop(key, None)
+            if self._collect is not None:
+                self._collect["refused"].append(
+                    {
+                        "fluent": key[0],
+                        "args": list(key[1]),
+                        "value": values[key],
+                        "reason": str(err),
+                    }
+                )
         violations = getattr(err, "violations", None)
         if violations:
             v = violations[0]

@@ -105,7 +105,27 @@ def robot_controller(*, ignore_first: bool = False, bad_requests: bool = False) 
         changed = await client.call(
             "sensing.publish", {"stream": "camera", "msg": {"seen": {"office": True}}}
         )
-        assert changed == {"changed": 1}
+        assert changed == {
+            "changed": 1,
+            "accepted": [{"fluent": "present", "args": ["office"], "value": True}],
+            "refused": [],
+        }
+        # odometry that puts the robot in two rooms: the knowledge base refuses it
+        both = await client.call(
+            "sensing.publish",
+            {"stream": "odometry", "msg": {"at": {"hall": True, "office": True, "lab": False}}},
+        )
+        assert both["changed"] == 0 and both["accepted"] == []
+        # (the message's batch is refused whole)
+        assert sorted((r["fluent"], r["args"][1], r["value"]) for r in both["refused"]) == [
+            ("robot-at", "hall", True),
+            ("robot-at", "lab", False),
+            ("robot-at", "office", True),
+        ]
+        assert "state invariant" in both["refused"][0]["reason"]
+        # a value the sensor cannot use: refused by the sensor
+        bad = await client.call("sensing.publish", {"stream": "camera", "msg": {"seen": 3}})
+        assert bad["changed"] == 0 and bad["refused"][0]["fluent"] == "present"
         ready.set()
         ignored = False
         while True:

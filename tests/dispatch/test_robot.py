@@ -3,6 +3,7 @@ contradicts an action's expected effect, and a handler that hangs."""
 
 from __future__ import annotations
 
+import logging
 from pathlib import Path
 
 import pytest
@@ -78,8 +79,18 @@ def run_robot(db: Path, *, lie_once: bool = False, hang_once: bool = False):  # 
     return report, kb
 
 
-def test_a_sensor_that_contradicts_the_expected_effect_wins(tmp_path: Path) -> None:
-    report, kb = run_robot(tmp_path / "r.db", lie_once=True)
+def test_a_sensor_that_contradicts_the_expected_effect_wins(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    with caplog.at_level(logging.WARNING, logger="ippc.dispatch.dispatcher"):
+        report, kb = run_robot(tmp_path / "r.db", lie_once=True)
+    # a WARNING (not INFO, silent under -q) with what was sensed and what the model allowed
+    (line,) = [r.getMessage() for r in caplog.records if "contradicts the model" in r.getMessage()]
+    assert line == (
+        "turn 1: sensing contradicts the model after move(r1,hall,office): sensed "
+        "robot-at(r1, hall) = true, robot-at(r1, office) = false; the model allowed "
+        "robot-at(r1, hall) = false, robot-at(r1, office) = true"
+    )
     assert report.goal_reached and report.session_status == "finished"
     actions = [(e["action"], e["outcome"]) for e in report.executed]
     # the first move "succeeded" but the odometry kept the robot in the hall:
