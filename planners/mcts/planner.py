@@ -328,9 +328,10 @@ class MCTSPlanner(Planner):
     # -- a turn --------------------------------------------------------
 
     def act(self, obs: Observation) -> list[WireFluent]:
-        # a turn of the wave engine in a worker thread: one that runs past its
-        # deadline (a slow root expansion) sends noop and finishes in the background
-        if self.settings.iterations is not None or self.budgets is None or self.engine != "wave":
+        # a turn in a worker thread (but the C tree's, which keeps its deadline): one
+        # that runs past it (a slow root expansion) sends noop and finishes in the
+        # background
+        if self.settings.iterations is not None or self.budgets is None or self.compiled:
             return self._act(obs)
         deadline = obs.deadline
         if self.settings.time_per_step is not None:

@@ -7,8 +7,9 @@ on when the allowance (option `startup`) runs short:
 * the relevance analysis (`prune_useless`) runs in a worker thread with the
   time left as its deadline; late, every action grounding is kept;
 * the C step's translation and compile run in a worker thread too; late,
-  the Python step (the compiler, when it was already running, finishes in
-  the background and its library is cached for the next session);
+  the session goes on as with `compiled=no` (the compiler, when it was
+  already running, finishes in the background and its library is cached for
+  the next session);
 * the legal actions in C (`setup_enum`) and IDS's learning phase run only
   when at least `ENUM_SECONDS` / `IDS_SECONDS` are left, else the Python
   solver's candidates, and roll-outs instead of IDS;
@@ -104,7 +105,7 @@ class Budgets:
                     f"mcts: compiled=yes, but the C step is not built within the start-up "
                     f"allowance of {self.startup.seconds:g} s (option startup)"
                 ) from None
-            self.startup.skip("compiling the C step", f"{err}; the Python step")
+            self.startup.skip("compiling the C step", f"{err}; no C step (compiled=no)")
             return dataclasses.replace(settings, compiled="no")
         return settings
 

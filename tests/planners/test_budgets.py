@@ -250,16 +250,50 @@ def test_mcts_thts_sizes_its_tree_to_the_budget() -> None:
     assert planner.settings.max_nodes == (MIB // 2) // sizing.node_bytes < 200_000
 
 
-def test_mcts_startup_fallbacks_warn_what_they_skip(caplog: pytest.LogCaptureFixture) -> None:
+def test_mcts_startup_of_zero_skips_the_compile_and_still_acts(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
     model = tiny("trap")
     sim = Simulator(model)
-    planner = MCTSPlanner(startup="0", compiled="no", seed="1")
+    planner = MCTSPlanner(startup="0", seed="1")
     with caplog.at_level(logging.WARNING):
         planner.start_session(session_of(model, sim))
+    assert planner.budgets is not None
+    assert planner.budgets.startup.skipped[0] == "compiling the C step"
+    assert "start-up: compiling the C step skipped (no start-up time left for compiling" in (
+        caplog.text
+    )
+    assert not planner.compiled and planner._asked.compiled == "auto"
+    planner.start_round(1)
+    names = {name for name, _, _ in planner.act(first_turn(sim))}
+    assert names <= {"safe", "risky"}
+
+
+def test_mcts_thts_startup_fallbacks_warn_what_they_skip(
+    caplog: pytest.LogCaptureFixture, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from ippc.planners.mcts import planner as planner_module
+
+    def late(scalar: object) -> list[tuple[str, tuple[int, ...]]]:
+        raise StartupOverrun("the relevance analysis did not end within 0.0 s")
+
+    # the analysis late, and less time left than IDS's learning needs
+    monkeypatch.setattr(planner_module, "useless_actions", late)
+    monkeypatch.setattr(planner_module, "IDS_SECONDS", 1e9)
+    monkeypatch.setattr(planner_module, "ENUM_SECONDS", 1e9)
+    model = tiny("trap")
+    sim = Simulator(model)
+    planner = MCTSPlanner(seed="1")
+    with caplog.at_level(logging.WARNING):
+        planner.start_session(session_of(model, sim))
+    if planner.engine != "thts":
+        pytest.skip("no C compiler here: the thts engine does not run")
     skipped = planner.budgets.startup.skipped  # type: ignore[union-attr]
     assert "the relevance analysis (prune_useless)" in skipped
     assert "learning IDS's depth" in skipped
-    assert "start-up: learning IDS's depth skipped (less than 1 s of the start-up allowance " in (
+    assert "start-up: the relevance analysis (prune_useless) skipped" in caplog.text
+    assert "every action grounding kept" in caplog.text
+    assert "start-up: learning IDS's depth skipped (less than 1e+09 s of the start-up " in (
         caplog.text
     )
     assert "roll-outs, no IDS" in caplog.text
@@ -405,7 +439,7 @@ def test_uniform_sends_noop_when_a_draw_is_late(
     assert {n for n, _, _ in got} <= {"pull"} and len(got) <= 1
 
 
-def test_mcts_late_compile_falls_back_to_the_python_step(
+def test_mcts_late_compile_goes_on_without_the_c_step(
     caplog: pytest.LogCaptureFixture, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     from ippc.planners.mcts import startup as startup_module
@@ -418,8 +452,8 @@ def test_mcts_late_compile_falls_back_to_the_python_step(
         planner.start_session(session_of(model))
     release.set()
     assert "start-up: compiling the C step skipped" in caplog.text
-    assert "the Python step" in caplog.text
-    assert planner.settings.compiled == "no" and not planner.compiled
+    assert "no C step (compiled=no)" in caplog.text
+    assert not planner.compiled
     assert planner._asked.compiled == "auto"
     strict = MCTSPlanner(startup="0.2", compiled="yes", seed="1")
     release.clear()
