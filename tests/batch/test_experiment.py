@@ -199,7 +199,7 @@ def test_a_version_2_database_is_migrated_in_place(tmp_path: Path) -> None:
     conn.commit()
     conn.close()
     with BatchStore(db) as store:
-        assert store.raw("PRAGMA user_version")[0][0] == server_store.SCHEMA_VERSION == 4
+        assert store.raw("PRAGMA user_version")[0][0] == server_store.SCHEMA_VERSION == 5
         assert store.raw("SELECT instance FROM sessions")[0][0] == "i"  # kept
         assert store.jobs() == []
     with server_store.ResultStore(db) as rs:  # the server reads it as before
