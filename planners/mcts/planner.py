@@ -113,7 +113,8 @@ class MCTSPlanner(Planner):
                 log.info("mcts: %s: no scalar step (%s); the wave search", session.instance, err)
         if scalar is None:
             self.settings = self._chooser.settings = budgets.size_wave(sim, self._asked)
-            self._warm_up(sim, self.settings.batch)
+            if budgets.fits("warming up the batched step", 1.0, "the first turn compiles it"):
+                self._warm_up(sim, self.settings.batch)
             ids, locks = budgets.heuristic(self.settings, lambda: self._heuristic(session))
             self._expander = Expander(sim, self._chooser, self.settings, self.rng, ids, locks)
         else:
