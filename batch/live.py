@@ -349,6 +349,11 @@ class BatchLive:
                 for e in self._jobs.values()
                 if e["status"] in SCORED
             ]
+            not_over = {
+                (e["planner"], e["instance"])
+                for e in self._jobs.values()
+                if e["status"] not in SCORED
+            }
             turns = dict(self._turns)
         try:
             table = score(records, self.rules, expected_rounds=self.rounds, expected=expected)
@@ -356,6 +361,11 @@ class BatchLive:
             scores: dict[str, Any] = {"error": str(err)}
             per_instance: dict[str, dict[str, float | None]] = {}
         else:
+            # `score` gives every planner a score on every instance (0 where it has no
+            # round, as FinalEval does at the end): so far, a job not over has none yet
+            table.instances = [
+                s for s in table.instances if (s.planner, s.instance) not in not_over
+            ]
             scores = table.as_json()
             got = {(s.instance, s.planner): s.score for s in table.instances}
             planners = table.planners()

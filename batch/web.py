@@ -24,9 +24,11 @@ Routes: ``/`` (the page), ``/events`` (its server-sent events), ``/snapshot.json
 
 from __future__ import annotations
 
+import json
 import logging
 import signal
 import threading
+import zlib
 from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 from urllib.parse import quote
@@ -222,8 +224,15 @@ def _score_note(scores: Mapping[str, Any]) -> str:
 # ------------------------------------------------------------- the events
 
 
+def _layout(planners: Sequence[str], instances: Sequence[Any]) -> str:
+    """What the grid's columns and rows were built for (a short digest)."""
+    names = [*planners, "|", *(i["name"] if isinstance(i, Mapping) else i for i in instances)]
+    return f"{zlib.crc32(json.dumps(names).encode()):08x}"
+
+
 def _fields(snap: Mapping[str, Any]) -> dict[str, Any]:
     fields: dict[str, Any] = {
+        "layout": _layout(snap["planners"], snap["instances"]),
         "experiment": snap["experiment"],
         "state": snap["state"],
         "kept": snap.get("kept") or "",
@@ -300,9 +309,13 @@ class _Translator:
             return [rows_event(rows)]
         if kind == "scores":
             scores = event["scores"]
+            fields = {"scores-note": _score_note(scores), "figures": event["seq"]}
+            if event.get("why") == "batch":  # the run began: its planners and instances
+                snap = self.live.snapshot()
+                fields["layout"] = _layout(snap["planners"], snap["instances"])
             return [
                 rows_event(_score_rows(scores, self.live.planners(), self.live.jobs())),
-                fields_event({"scores-note": _score_note(scores), "figures": event["seq"]}),
+                fields_event(fields),
             ]
         if kind == "batch":
             return [fields_event({"state": event["state"], "kept": event.get("kept") or ""})]
@@ -434,6 +447,7 @@ def _index(live: BatchLive) -> str:
         h("h2", "Jobs"),
         live_table("jobs", JOB_COLUMNS, rows["jobs"], links={"key": "/job/{key}"}),
         events="/events",
+        layout=_layout(planners, snap["instances"]),
         nav={"rddl-batch": "/", "snapshot (JSON)": "/snapshot.json"},
     )
 

@@ -106,11 +106,14 @@ def page(
     events: str | None = None,
     nav: Mapping[str, str] | None = None,
     scripts: Iterable[str] = ("live.js",),
+    layout: str | None = None,
 ) -> Markup:
     """A whole document: `title`, the stylesheet and scripts from the
     package's static folder, `body`. With `events` (a path such as
     `/events`), live.js follows that event stream (see docs/web.md for the
-    events it applies). `nav` maps link text to paths for the top bar."""
+    events it applies). `nav` maps link text to paths for the top bar.
+    `layout` names what the page's tables were built for (their columns):
+    a `layout` field that says otherwise makes live.js load the page again."""
     links = [h("a", text, href=href) for text, href in (nav or {}).items()]
     return Markup(
         "<!DOCTYPE html>\n"
@@ -131,6 +134,7 @@ def page(
                 h("h1", title),
                 *body,
                 data_events=events,
+                data_layout=layout,
             ),
             lang="en",
         )

@@ -51,9 +51,18 @@ command = ["/no/such/folder/{HOSTILE}", "{{port}}"]
 """
 
 
-def experiment_file(folder: Path) -> Path:
+def experiment_file(folder: Path, *, print_jobs_last: bool = False) -> Path:
+    """The experiment above (with `print_jobs_last`, its two instances swapped: the
+    longer jobs, print_jobs's, come when each planner has a job done already)."""
     path = folder / "web.toml"
-    path.write_text(EXPERIMENT)
+    text = EXPERIMENT
+    if print_jobs_last:
+        first, second = (
+            f'"{REPO / "domains" / "print_jobs" / "instance1.rddl"}",',
+            f'"{RDDLSIM_RDDL / "sysadmin_inst_mdp__1.rddl"}",',
+        )
+        text = text.replace(first, "@@").replace(second, first).replace("@@", second)
+    path.write_text(text)
     return path
 
 
@@ -92,13 +101,23 @@ async def test_the_page_follows_a_run_and_escapes_what_it_shows(tmp_path: Path) 
                     if event["type"] == "fields" and event["fields"].get("state") == "finished":
                         break
             # the grid and the jobs changed as the jobs ran, turn by turn
-            grid = [c for e in seen for c in cells_of(e, "grid").values()]
+            # (a job's cell: its text, its state's colour, a link to the job's page)
+            grid = [
+                v
+                for e in seen
+                for c in cells_of(e, "grid").values()
+                for v in c.values()
+                if isinstance(v, dict)
+            ]
             assert any(
-                str(v).startswith("running: round 1, turn ") for c in grid for v in c.values()
+                v["text"].startswith("running: round 1, turn ") and v["state"] == "running"
+                for v in grid
             )
             assert any(
-                str(v).startswith("finished: 2 rounds, mean ") for c in grid for v in c.values()
+                v["text"].startswith("finished: 2 rounds, mean ") and v["state"] == "finished"
+                for v in grid
             )
+            assert all(v["href"].startswith("/job/") for v in grid)
             jobs = [(k, c) for e in seen for k, c in cells_of(e, "jobs").items()]
             failed = [c for k, c in jobs if k.startswith("broken@") and c.get("state") == "failed"]
             assert failed and HOSTILE in failed[0]["reason"]  # as text, for textContent
@@ -240,8 +259,30 @@ def test_rddl_batch_run_with_web(tmp_path: Path) -> None:
 
         snap = trio.run(look)
         assert snap["rules"] == "ippc2011" and snap["experiment"] == f"web {HOSTILE}"
-        out, err = proc.communicate(timeout=180)
-        assert proc.returncode == 0, err
+        # the run ends; its page stays up, and says so, until the process is stopped
+        deadline = time.monotonic() + 180
+        while True:
+            line = proc.stderr.readline().decode()
+            assert line or proc.poll() is None, "rddl-batch ended without keeping its page"
+            if line.startswith("the run is over; the web view stays up on"):
+                break
+            assert time.monotonic() < deadline, "the run did not end in 180 s"
+        assert f"http://127.0.0.1:{port}/ until you stop rddl-batch (Ctrl-C)" in line
+
+        async def after() -> dict[str, Any]:
+            snap: dict[str, Any] = (await fetch(port, "/snapshot.json")).json()
+            page = await fetch(port, "/")
+            assert page.status == 200 and "this page stays up until" in page.text
+            return snap
+
+        snap = trio.run(after)
+        assert snap["state"] == "finished" and snap["counts"]["finished"] == 6
+        assert snap["kept"].startswith("The run is over; this page stays up until")
+        time.sleep(1.0)
+        assert proc.poll() is None  # still up
+        proc.send_signal(signal.SIGINT)
+        out, err = proc.communicate(timeout=60)
+        assert proc.returncode == 1, err  # (two jobs failed: the run's own exit status)
         assert b"6/8 sessions done" in out
     finally:
         if proc.poll() is None:
@@ -261,34 +302,137 @@ def test_web_options_are_checked() -> None:
     assert result.exit_code == 2 and "--web" in result.output
 
 
+GRID_JS = """
+const text = f => { const el = document.querySelector('[data-page-field="' + f + '"]');
+                    return el ? el.textContent : null; };
+const grid = document.querySelector('tbody[data-table="grid"]');
+if (!grid || !document.querySelector('tbody[data-table="overall"]')) return null;
+const heads = [...grid.parentElement.querySelectorAll('thead th')].map(th => th.textContent);
+const cells = [];
+for (const tr of grid.children) {
+  const tds = [...tr.children];
+  for (const td of tds) {
+    if (!td.dataset.field.startsWith('p')) continue;
+    const a = td.querySelector('a');
+    cells.push({planner: heads[tds.indexOf(td)], instance: tr.dataset.key,
+                state: td.dataset.state || null, text: td.textContent,
+                href: a ? a.getAttribute('href') : null,
+                background: getComputedStyle(td).backgroundColor});
+  }
+}
+const overall = {};
+for (const tr of document.querySelector('tbody[data-table="overall"]').children) {
+  const get = f => tr.querySelector('[data-field="' + f + '"]').textContent;
+  overall[tr.dataset.key] = {instances: get('instances'), unscored: get('unscored'),
+                             score: get('score')};
+}
+return {cells: cells, overall: overall, kept: text("kept"), counts: text("counts")};
+"""
+
+DONE = ("finished", "timeout", "failed")
+
+
 @pytest.mark.alone  # a browser and worker processes
 def test_chromium_sees_jobs_end_and_the_hostile_name_as_text(tmp_path: Path) -> None:
+    """In Chromium: the grid's cells coloured by the job's state and linking to the
+    job's page (its session's rounds as the database has them), a running job shown as
+    running beside the scores so far (not a 0 among them), the page kept up after the
+    run, the hostile name as text."""
+    import sqlite3
+    from urllib.parse import quote
+
+    from ippc.web import fmt_number
+
     browser = headless_chromium()
+    from selenium.common.exceptions import WebDriverException
     from selenium.webdriver.common.by import By
 
-    path = experiment_file(tmp_path)
+    path = experiment_file(tmp_path, print_jobs_last=True)
+    db = tmp_path / "db.sqlite"
     cmd = [sys.executable, "-m", "ippc.batch.cli", "run", str(path), "--db"]
-    cmd += [str(tmp_path / "db.sqlite"), "--jobs", "1", "--web", "0"]
+    cmd += [str(db), "--jobs", "1", "--web", "0"]
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         assert proc.stderr is not None
         line = proc.stderr.readline()
         assert line.startswith("web view on http://127.0.0.1:"), line
-        browser.get(line.split(" on ", 1)[1].strip())
-        counts = browser.find_element(By.CSS_SELECTOR, '[data-page-field="counts"]')
-        first = counts.text
-        deadline = time.monotonic() + 120
-        while counts.text == first or "finished" not in counts.text:
-            assert time.monotonic() < deadline, f"the counts stayed {counts.text!r} for 120 s"
+        url = line.split(" on ", 1)[1].strip()
+        # (opened before the run has its planners: the page loads itself again once
+        # it has them, as its grid's columns are theirs)
+        browser.get(url)
+        running_seen = 0
+        deadline = time.monotonic() + 180
+        while True:
+            assert time.monotonic() < deadline, "the run did not end in 180 s"
             assert proc.poll() is None, proc.communicate()
+            # one look at the grid and the scores together (live.js applies an event whole)
+            try:
+                view = browser.execute_script(GRID_JS)
+            except WebDriverException:  # (between two loads of the page)
+                view = None
+            if view is None:
+                time.sleep(0.1)
+                continue
+            if view["kept"]:
+                break
+            for c in view["cells"]:
+                if c["state"] != "running":
+                    continue
+                assert c["text"].startswith("running"), c
+                mine = [d for d in view["cells"] if d["planner"] == c["planner"]]
+                done = sum(1 for d in mine if d["state"] in DONE)
+                row = view["overall"][c["planner"]]
+                # running, not a 0 in the scores: its instances scored are its jobs done
+                assert "1 running" in row["unscored"], (c, row)
+                assert row["instances"] == str(done), (c, row)
+                if done:
+                    running_seen += 1
             time.sleep(0.1)
+        assert running_seen > 0, "never saw a job run beside a score of its planner"
+        assert view["kept"] == (
+            "The run is over; this page stays up until rddl-batch is stopped (Ctrl-C)."
+        )
+        assert "8 jobs: 6 finished, 2 failed" in view["counts"]
+        # the grid: every cell coloured by its job's state, a link to the job's page
+        view = browser.execute_script(GRID_JS)
+        states = {(c["planner"], c["instance"]): c["state"] for c in view["cells"]}
+        assert len(states) == 8
+        for (planner, _instance), state in states.items():
+            assert state == ("failed" if planner == "broken" else "finished")
+        colours = {c["state"]: c["background"] for c in view["cells"]}
+        assert colours == {"finished": "rgb(228, 239, 248)", "failed": "rgb(253, 233, 223)"}
+        for c in view["cells"]:
+            assert c["href"] == "/job/" + quote(f"{c['planner']}@{c['instance']}", safe="")
+        assert all(row["unscored"] == "" for row in view["overall"].values())
+        # a job's page: its session's rounds, as the database has them
+        browser.find_element(By.CSS_SELECTOR, 'a[href="/job/mcts%40print_jobs_inst_1"]').click()
+        assert browser.title == "job mcts@print_jobs_inst_1"
+        with sqlite3.connect(db) as conn:
+            rewards = [
+                r[0]
+                for r in conn.execute(
+                    "SELECT r.reward FROM jobs j JOIN rounds r ON r.session_id = j.session_id"
+                    " WHERE j.job_key = 'mcts@print_jobs_inst_1' ORDER BY r.id"
+                )
+            ]
+        assert len(rewards) == 2
+        shown = [
+            td.text
+            for td in browser.find_elements(
+                By.CSS_SELECTOR, 'tbody[data-table="rounds"] [data-field="reward"]'
+            )
+        ]
+        assert shown == [fmt_number(r) for r in rewards]
+        state = browser.find_element(By.CSS_SELECTOR, '[data-page-field="job-state"]')
+        assert state.text == "finished"
+        browser.back()
         # live.js applied the events (no reload); the hostile name is text, not an element
-        assert int(browser.execute_script("return document.body.dataset.eventsSeen")) > 0
         name = browser.find_element(By.CSS_SELECTOR, '[data-page-field="experiment"]').text
         assert name == f"web {HOSTILE}"
         assert browser.find_elements(By.CSS_SELECTOR, 'img[src="x"]') == []
         # nothing broke the page's Content-Security-Policy, no script error, no failed load
         assert console_errors(browser) == []
+        assert proc.poll() is None  # the page stays up until the process is stopped
     finally:
         browser.quit()
         if proc.poll() is None:

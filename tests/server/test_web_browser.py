@@ -182,3 +182,172 @@ def test_the_page_follows_a_running_session(server: tuple[int, int]) -> None:
         session.join(0.1)
     finally:
         driver.quit()
+
+
+def _fluent_text(name: str, args: list[str], value: str) -> tuple[str, str]:
+    """(the page's name of a fluent, its value as the page writes it)."""
+    return (f"{name}({', '.join(args)})" if args else name), value
+
+
+async def _recorded_session(port: int, instance: str) -> dict[str, Any]:
+    """A whole noop session with raw bytes, keeping every turn's observed fluents
+    (name, value as sent) and the round rewards."""
+    from lxml import etree
+
+    from .harness import NOOP, ROUND_REQUEST, RawClient, session_request, strip_frame
+
+    c = await RawClient.connect(port)
+    out: dict[str, Any] = {"rounds": [], "turns": []}
+    try:
+        await c.send(session_request(instance, "recorder"))
+        init = etree.fromstring(strip_frame(await c.recv()))
+        assert init.tag == "session-init", init.tag
+        for rnd in range(1, int(init.findtext("num-rounds")) + 1):
+            await c.send(ROUND_REQUEST)
+            await c.recv()  # round-init
+            while True:
+                msg = etree.fromstring(strip_frame(await c.recv()))
+                if msg.tag == "round-end":
+                    out["rounds"].append(float(msg.findtext("round-reward")))
+                    break
+                fluents = [
+                    _fluent_text(
+                        x.findtext("fluent-name"),
+                        [a.text or "" for a in x.findall("fluent-arg")],
+                        x.findtext("fluent-value"),
+                    )
+                    for x in msg.findall("observed-fluent")
+                ]
+                out["turns"].append((rnd, int(msg.findtext("turn-num")), fluents))
+                await c.send(NOOP)
+        await c.recv()  # session-end
+    finally:
+        await c.close()
+    return out
+
+
+def _expected_state(fluents: list[tuple[str, str]]) -> str:
+    """The page's state cell: the fluents that are true (or not 0) as sent."""
+    shown = []
+    for name, value in fluents:
+        if value == "true":
+            shown.append(name)
+        elif value != "false" and value not in ("0", "0.0"):
+            shown.append(f"{name}={value}")
+    return " ".join(shown) or "(none)"
+
+
+def _expected_changes(before: list[tuple[str, str]], now: list[tuple[str, str]]) -> str:
+    old = dict(before)
+    changed = [f"{n}: {old.get(n)} \u2192 {v}" for n, v in now if old.get(n) != v]
+    return " ".join(changed) or "(no change)"
+
+
+def test_state_column_refusals_and_chart_scale() -> None:
+    """The session page's turns show the state's true fluents and what changed since
+    the turn before, as the client received them; the connections refused by a cap
+    or for an unknown instance (in a worker process) are counted on the page; the
+    sessions' small reward charts carry their scale."""
+    import urllib.request
+
+    from selenium.webdriver.common.by import By
+
+    from .harness import RawClient, session_request
+
+    proc, port, web = start_server("--workers", "2", "--rounds", "2")
+    proc2, port2, web2 = start_server(
+        "--workers", "1", "--rounds", "2", "--max-connections-per-address", "1"
+    )
+    driver = browser()
+    try:
+        recorded = trio.run(_recorded_session, port, "print_jobs_inst_1")
+
+        async def refused() -> None:
+            # an unknown instance (played by a worker process: counted there, sent on)
+            c = await RawClient.connect(port)
+            await c.send(session_request("no_such_instance", "x"))
+            await c.expect_eof()
+            await c.close()
+            # over the cap of one connection per address (refused by the listener)
+            first = await RawClient.connect(port2)
+            await first.send(session_request("print_jobs_inst_1", "holder"))
+            await first.recv()  # session-init: the connection is in
+            second = await RawClient.connect(port2)
+            await second.expect_eof()
+            await second.close()
+            await first.close()
+
+        trio.run(refused)
+
+        driver.get(f"http://127.0.0.1:{web}/")
+        wait(driver, lambda d: cell(d, "1", "status") == "finished")
+
+        def refused_rows(d: Any) -> dict[str, str]:
+            rows = d.find_elements(By.CSS_SELECTOR, 'tbody[data-table="refused"] tr')
+            return {
+                r.find_element(By.CSS_SELECTOR, '[data-field="kind"]').text: r.find_element(
+                    By.CSS_SELECTOR, '[data-field="count"]'
+                ).text
+                for r in rows
+            }
+
+        wait(driver, lambda d: refused_rows(d) == {"unknown instance": "1"})
+        field = driver.find_element(By.CSS_SELECTOR, '[data-page-field="refused"]')
+        assert field.text == "1"
+        driver.get(f"http://127.0.0.1:{web2}/")
+        wait(driver, lambda d: refused_rows(d) == {"cap of 1 per address reached": "1"})
+        assert driver.find_element(By.CSS_SELECTOR, '[data-page-field="refused"]').text == "1"
+        assert cell(driver, "1", "client") == "holder"  # (the session that held the cap)
+
+        # the chart in the sessions' table: its scale is the rewards' highest and lowest
+        driver.get(f"http://127.0.0.1:{web}/")
+        wait(driver, lambda d: cell(d, "1", "status") == "finished")
+        img = driver.find_element(By.CSS_SELECTOR, 'tr[data-key="1"] img.spark')
+        wait(driver, lambda d: d.execute_script("return arguments[0].naturalWidth", img) > 0)
+        with urllib.request.urlopen(f"http://127.0.0.1:{web}/chart/session/1.svg") as reply:
+            svg = reply.read().decode()
+        hi, lo = max(recorded["rounds"]), min(recorded["rounds"])
+        from ippc.web import fmt_number
+
+        if hi != lo:
+            assert f">{fmt_number(hi, 3)}</text>" in svg and f">{fmt_number(lo, 3)}</text>" in svg
+        assert ">1</text>" in svg and ">2</text>" in svg  # the first and last round
+
+        # the session's page: its last 20 turns (round 2), state and changes as sent
+        driver.get(f"http://127.0.0.1:{web}/session/1")
+        rows_css = 'tbody[data-table="turns"] tr'
+        wait(driver, lambda d: len(d.find_elements(By.CSS_SELECTOR, rows_css)) == 20)
+        shown = {
+            r.get_attribute("data-key"): (
+                r.find_element(By.CSS_SELECTOR, '[data-field="state"]').text,
+                r.find_element(By.CSS_SELECTOR, '[data-field="changed"]').text,
+            )
+            for r in driver.find_elements(By.CSS_SELECTOR, rows_css)
+        }
+        turns = recorded["turns"]
+        checked = 0
+        for k, (rnd, turn, fluents) in enumerate(turns):
+            key = f"{rnd}.{turn}"
+            if key not in shown:
+                continue
+            state, changed = shown[key]
+            assert state == _expected_state(fluents), key
+            assert "false" not in state.split("=")[-1:]  # no false fluent listed
+            if turn == 1:
+                assert changed == "(the round's first turn)"
+            else:
+                assert changed == _expected_changes(turns[k - 1][2], fluents), key
+            checked += 1
+        assert checked == 20
+        assert any(v[1] not in ("(no change)", "(the round's first turn)") for v in shown.values())
+        severe = [e for e in driver.get_log("browser") if e.get("level") == "SEVERE"]
+        assert severe == [], severe
+    finally:
+        driver.quit()
+        for p in (proc, proc2):
+            p.terminate()
+            try:
+                p.wait(10)
+            except subprocess.TimeoutExpired:
+                p.kill()
+                p.wait()

@@ -3,7 +3,7 @@
 // images get paths built from the page's own templates and encoded keys.
 // The events (see docs/web.md):
 //   {"type": "rows", "reset": bool, "rows": [{"table", "key", "cells": {...}, "remove"?}]}
-//   {"type": "fields", "fields": {...}}
+//   {"type": "fields", "fields": {...}}  ("layout": reload when it is not the page's)
 // A cell is a value, or {"text", "state"?, "href"?} (its own colour and link).
 "use strict";
 (function () {
@@ -122,6 +122,16 @@
 
   function applyFields(ev) {
     const fields = ev.fields || {};
+    // the tables' columns changed (e.g. a run's planners, known once it starts)
+    if (
+      body.dataset.layout !== undefined &&
+      Object.prototype.hasOwnProperty.call(fields, "layout") &&
+      String(fields.layout) !== body.dataset.layout
+    ) {
+      source.close();
+      window.location.reload();
+      return;
+    }
     for (const el of document.querySelectorAll("[data-page-field]")) {
       const name = el.dataset.pageField;
       if (Object.prototype.hasOwnProperty.call(fields, name)) {
