@@ -22,6 +22,9 @@ address of loopback), one kind at a time:
     bomb     20 connections sending an entity-expansion session-request
     flood    connections opened and closed as fast as 4 threads can
 
+With `--kb`, the knowledge base's JSON-lines socket instead (`rddl-kb`, the
+server of `rddl-dispatch --kb-port`): the attacks of bench/kb_attacks.py.
+
 For each attack: the good client's turns/s over the attack window against the
 undisturbed window just before it (the ratio is what a session in progress
 keeps), whether a new session from 127.0.0.1 starts during the attack (the
@@ -47,6 +50,9 @@ from typing import Any
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
+
+from kb_attacks import ALL as KB_ATTACKS  # noqa: E402  (bench/kb_attacks.py)
+from kb_attacks import good_kb_client, run_kb  # noqa: E402
 
 from server import (  # noqa: E402  (bench/server.py: the same instance, client and process tools)
     ACTIONS,
@@ -128,9 +134,9 @@ def good_client(port: int) -> None:
 class GoodClient:
     """The good client's process and the (time, turns) samples it reports."""
 
-    def __init__(self, port: int):
+    def __init__(self, port: int, command: list[str] | None = None):
         self.proc = subprocess.Popen(
-            [sys.executable, __file__, "--good-client", str(port)],
+            [sys.executable, __file__, *(command or ["--good-client", str(port)])],
             stdout=subprocess.PIPE,
             text=True,
         )
@@ -472,10 +478,20 @@ def main() -> None:
     ap.add_argument("--nofile", type=int, default=256, help="the servers' open-file limit")
     ap.add_argument("--rddlsim-classpath", default=os.environ.get("RDDLSIM_CP"))
     ap.add_argument("--json", action="store_true")
+    ap.add_argument(
+        "--kb",
+        action="store_true",
+        help="attack the knowledge base's JSON-lines socket (rddl-kb) instead (bench/kb_attacks.py)",
+    )
+    ap.add_argument("--kb-attacks", nargs="+", choices=KB_ATTACKS, default=KB_ATTACKS)
     ap.add_argument("--good-client", type=int, help=argparse.SUPPRESS)
+    ap.add_argument("--good-kb-client", type=int, help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.good_client:
         good_client(args.good_client)
+        return
+    if args.good_kb_client:
+        good_kb_client(args.good_kb_client)
         return
     try:
         socket.create_connection  # noqa: B018
@@ -484,6 +500,10 @@ def main() -> None:
         probe.close()
     except OSError as err:
         raise SystemExit(f"cannot use {ATTACKER} as the attackers' address: {err}") from None
+    if args.kb:
+        print(f"rddl-kb, courier domain; window {args.window:g} s; open-file limit {args.nofile}")
+        run_kb(args)
+        return
     rows: list[dict[str, Any]] = []
     with tempfile.TemporaryDirectory(prefix="ippc-attacks-") as tmp:
         rddl = bench_rddl(Path(tmp))

@@ -75,6 +75,10 @@ class KnowledgeBase(RuntimeGoals):
         self._subscribers: list[Subscriber] = []
         self._sensed: set[str] = set()
         self._horizon = model.horizon
+        # one more at every change of state, goal, parameters or sensed
+        # flags: the key of the generated problems' cache
+        self._generation = 0
+        self._generated: dict[tuple[Any, ...], Any] = {}
         self._discount = model.discount
         self._max_nondef = model.max_nondef_actions
         self._evaluator = Evaluator(model, self._store.get, self._store.pvars.__contains__)
@@ -314,6 +318,8 @@ class KnowledgeBase(RuntimeGoals):
 
     def _after_change(self, changes: list[Change], source: str) -> None:
         """Under the lock, after a batch is written: caches, the journal."""
+        if changes:
+            self._changed()
         if any(self._store.pvars[c.fluent].kind == NON_FLUENT for c in changes):
             self._goal = None
             self._simulator = None  # it folds non-fluents into constants
@@ -412,6 +418,7 @@ class KnowledgeBase(RuntimeGoals):
                 self._sensed.add(p.name)
             else:
                 self._sensed.discard(p.name)
+            self._changed()
 
     def is_sensed(self, fluent: str) -> bool:
         """Whether `fluent` is marked as sensed (KBError if unknown)."""
@@ -493,6 +500,7 @@ class KnowledgeBase(RuntimeGoals):
         ):
             raise KBError(f"the horizon must be a positive integer, not {value!r}", "bad-value")
         self._horizon = value
+        self._changed()
 
     @property
     def discount(self) -> float:
@@ -508,6 +516,7 @@ class KnowledgeBase(RuntimeGoals):
         ):
             raise KBError(f"the discount must be a number in [0, 1], not {value!r}", "bad-value")
         self._discount = float(value)
+        self._changed()
 
     @property
     def max_nondef_actions(self) -> int | None:
@@ -524,6 +533,7 @@ class KnowledgeBase(RuntimeGoals):
                 "bad-value",
             )
         self._max_nondef = value
+        self._changed()
 
     # ------------------------------------------------------------------ goal
 
@@ -667,7 +677,10 @@ class KnowledgeBase(RuntimeGoals):
         differ from their declared default are written, unless `explicit`.
         Names default to ROSPlan's: "<domain>__generated_instance" and
         "nf_" before it."""
-        return rddl_instance(self, name, non_fluents_name, explicit)
+        return self._generate(
+            ("rddl", name, non_fluents_name, explicit),
+            lambda: rddl_instance(self, name, non_fluents_name, explicit),
+        )
 
     def to_pddl(self, mode: str = "most-likely", exogenous: str = "current") -> tuple[str, str]:
         """A classical PDDL (domain, problem) of the current knowledge by
@@ -676,7 +689,24 @@ class KnowledgeBase(RuntimeGoals):
         values, or as outcome actions ("current", "most-likely",
         "outcomes"); action costs from the reward; the goal from `goal()`
         (KBError without one). See `ippc.kb.pddl`."""
-        return to_pddl(self, mode, exogenous)
+        return self._generate(("pddl", mode, exogenous), lambda: to_pddl(self, mode, exogenous))
+
+    def _changed(self) -> None:
+        self._generation += 1
+        self._generated = {}
+
+    def _generate(self, key: tuple[Any, ...], make: Callable[[], Any]) -> Any:
+        """`make()`, or what it gave for `key` since the knowledge last
+        changed: a client asking for the same problem again (a pipelining
+        one: thousands) costs a lookup, not a generation."""
+        generation = self._generation
+        hit = self._generated.get(key)
+        if hit is not None and hit[0] == generation:
+            return hit[1]
+        out = make()
+        if len(self._generated) < 64:
+            self._generated[key] = (generation, out)
+        return out
 
     def domain_rddl(self) -> str:
         """The domain block, as `ippc.rddl`'s writer writes it."""

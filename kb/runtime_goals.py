@@ -44,6 +44,9 @@ class RuntimeGoals:
     def _log(self, entry: dict[str, Any]) -> None:
         raise NotImplementedError
 
+    def _changed(self) -> None:
+        raise NotImplementedError
+
     def set_goal(self, facts: GoalFacts, source: str = "api") -> Goal | None:
         """Make the goal the conjunction of `facts` (a `GoalFact`, a text
         such as "holding(r1)", "~present(office)" or "status == @busy", a
@@ -138,6 +141,7 @@ class RuntimeGoals:
         """Under the lock: the new run-time goal (None: the domain's)."""
         self._runtime_goal = facts
         self._goal_version += 1
+        self._changed()
         self._log(
             {
                 "source": source,

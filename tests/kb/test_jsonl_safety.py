@@ -312,3 +312,18 @@ async def test_a_pipelining_client_does_not_stall_another() -> None:
             assert handled.count("pipe") == 3000
             assert handled.index("good", 1) < 1 + 200, handled.index("good", 1)
             assert n == handled.index("good", 1) + 1
+
+
+def test_a_generated_problem_is_made_again_only_after_a_change(
+    warehouse: KnowledgeBase,
+) -> None:
+    """(A client pipelining thousands of kb.rddl_instance requests costs lookups.)"""
+    from ippc.kb import Update
+
+    first = warehouse.to_rddl_instance()
+    assert warehouse.to_rddl_instance() is first
+    warehouse.apply([Update.set("battery", (), 3)], "test")
+    changed = warehouse.to_rddl_instance()
+    assert changed is not first and changed != first
+    warehouse.horizon = 7
+    assert "horizon = 7" in warehouse.to_rddl_instance()
