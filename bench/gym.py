@@ -13,6 +13,16 @@ What it measures
                    which makes environment i equal an RDDLEnv with the same
                    seed); ``vector 1 stream`` the same with one generator for
                    the batch (``streams="batch"``).
+    flat           steps per second of one ``FlatRDDLEnv`` (``Discrete(11)``: noop
+                   or one reboot), with the same reboots as ``single`` given
+                   as indices: what the flat spaces cost.
+    SB3 vector     states stepped per second by ``SB3VecEnv`` (stable-baselines3's
+                   VecEnv over one RDDLVectorEnv) of ``--envs`` environments,
+                   through SB3's ``step`` with an index per environment;
+    SB3 dummy      the same through SB3's own ``DummyVecEnv`` over ``--envs``
+                   ``FlatRDDLEnv``s (n environments stepped in a loop). Both
+                   skipped, with a message, when stable-baselines3 is not
+                   installed.
     pyRDDLGym      steps per second of pyRDDLGym's ``env.step(action)``
                    (``pyRDDLGym.make("SysAdmin_MDP_ippc2011", "10")``, its
                    defaults) with the same actions as ``single`` (the same
@@ -53,7 +63,7 @@ from typing import Any, cast
 
 import numpy as np
 from gymnasium import spaces
-from ippc.gym import RDDLEnv, RDDLVectorEnv
+from ippc.gym import FlatRDDLEnv, RDDLEnv, RDDLVectorEnv
 
 PROBLEM, INSTANCE = "SysAdmin_MDP_ippc2011", "10"
 DEFAULT_STEPS = 4000
@@ -137,6 +147,46 @@ def peer_runner(steps: int, names: list[str], seed: int) -> Callable[[int], int]
     return episodes(env, actions)
 
 
+def flat_runner(steps: int, names: list[str], seed: int) -> Callable[[int], int]:
+    """One FlatRDDLEnv with the reboots of `single_runner` as Discrete indices."""
+    env = FlatRDDLEnv(PROBLEM, INSTANCE)
+    rng = np.random.default_rng(seed)
+    # index j + 1 reboots the j-th computer in the Dict's key order
+    return episodes(env, [int(k) + 1 for k in rng.integers(0, len(names), steps)])
+
+
+def sb3_runners(
+    envs_n: int, batches: int, names: list[str], seed: int
+) -> tuple[Callable[[int], int], Callable[[int], int]] | str:
+    """SB3VecEnv's and DummyVecEnv's step over n environments, or why they cannot run."""
+    try:
+        from ippc.gym.baselines import SB3VecEnv
+        from stable_baselines3.common.vec_env import DummyVecEnv
+    except ImportError:
+        return "stable-baselines3 is not installed (pip install 'ippc[rl]'): SB3 is skipped"
+    rng = np.random.default_rng(seed)
+    actions = [rng.integers(0, len(names), envs_n) + 1 for _ in range(min(batches, 64))]
+
+    def runner(vec: Any) -> Callable[[int], int]:
+        vec.seed(0)
+        vec.reset()
+        where = [0]
+
+        def run(n: int) -> int:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                for _ in range(n):
+                    vec.step(actions[where[0] % len(actions)])
+                    where[0] += 1
+            return n * envs_n
+
+        return run
+
+    ours = SB3VecEnv(PROBLEM, INSTANCE, num_envs=envs_n)
+    theirs = DummyVecEnv([lambda: FlatRDDLEnv(PROBLEM, INSTANCE) for _ in range(envs_n)])
+    return runner(ours), runner(theirs)
+
+
 def best_rate(run: Callable[[int], int], n: int, times: list[float]) -> float:
     """One timed run of n; appends its items per second to `times`; the best so far."""
     gc.collect()
@@ -162,6 +212,13 @@ def main(argv: list[str] | None = None) -> int:
         "vector": (vector_runner(args.envs, batches, "per_state", names, 0), batches),
         "vector 1 stream": (vector_runner(args.envs, batches, "batch", names, 0), batches),
     }
+    sides["flat"] = (flat_runner(args.steps, names, 0), args.steps)
+    sb3 = sb3_runners(args.envs, batches, names, 0)
+    if isinstance(sb3, str):
+        print(sb3, file=sys.stderr)
+    else:
+        sides["SB3 vector"] = (sb3[0], batches)
+        sides["SB3 dummy"] = (sb3[1], batches)
     peer = peer_runner(args.steps, names, 0)
     if isinstance(peer, str):
         print(peer, file=sys.stderr)
@@ -185,6 +242,10 @@ def main(argv: list[str] | None = None) -> int:
         "single_over_pyrddlgym": best["single"] / best["pyRDDLGym"]
         if "pyRDDLGym" in best
         else None,
+        "flat_over_single": best["flat"] / best["single"],
+        "sb3_vector_over_dummy": best["SB3 vector"] / best["SB3 dummy"]
+        if "SB3 vector" in best
+        else None,
         "load_average": [round(load_before, 2), round(os.getloadavg()[0], 2)],
     }
     if args.json:
@@ -194,7 +255,8 @@ def main(argv: list[str] | None = None) -> int:
           f"{figures['load_average'][0]} -> {figures['load_average'][1]}")  # fmt: skip
     print(f"{'side':<16}{'per second':>14}")
     for name, rate in best.items():
-        unit = f"states ({args.envs} envs)" if name.startswith("vector") else "steps"
+        vector = name.startswith(("vector", "SB3"))
+        unit = f"states ({args.envs} envs)" if vector else "steps"
         print(f"{name:<16}{rate:>14.0f}  {unit}")
 
     def verdict(value: float, goal: float) -> str:
@@ -208,6 +270,13 @@ def main(argv: list[str] | None = None) -> int:
     print(
         f"vector 1 stream / single {r:7.1f}x  goal >= {GOAL_VECTOR:g}x  {verdict(r, GOAL_VECTOR)}"
     )
+    r = figures["flat_over_single"]
+    print(f"flat / single            {r:7.2f}x")
+    r = figures["sb3_vector_over_dummy"]
+    if r is None:
+        print("SB3 vector / SB3 dummy   skipped (stable-baselines3 is not installed)")
+    else:
+        print(f"SB3 vector / SB3 dummy   {r:7.1f}x")
     r = figures["single_over_pyrddlgym"]
     if r is None:
         print("single / pyRDDLGym       skipped (pyRDDLGym is not installed)")

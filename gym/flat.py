@@ -163,10 +163,18 @@ class FlatSpaces:
         ]
         order = sorted(range(self.size), key=lambda r: (len(changed[r]), changed[r]))
         self.table = {key: v[order].copy() for key, v, _ in columns}
+        # each index's Dict action with its non-default values only (the others
+        # take their default): what one step decodes
+        defaults = {key: d for key, _, d in columns}
+        self._sparse = [
+            {k: int(v[i]) for k, v in self.table.items() if v[i] != defaults[k]}
+            for i in range(self.size)
+        ]
         return ""
 
     size: int = 0
     """The number of joint actions of a Discrete action space."""
+    _sparse: list[dict[str, int]] = []
 
     # -- observations -----------------------------------------------------
 
@@ -196,6 +204,8 @@ class FlatSpaces:
         return a.reshape(-1, len(self.act_keys))
 
     def _index(self, action: Any, n: int | None) -> np.ndarray:
+        if n is None and type(action) is int and 0 <= action < self.size:
+            return np.array([action])  # (the common case, without numpy's checks)
         a = np.asarray(action)
         want = () if n is None else (n,)
         integral = np.issubdtype(a.dtype, np.integer) or (
@@ -213,10 +223,10 @@ class FlatSpaces:
         return a
 
     def action(self, action: Any) -> dict[str, Any]:
-        """The Dict action of one flat action."""
+        """The Dict action of one flat action (of a Discrete index: its non-default
+        values only, the keys left out taking their default)."""
         if self.kind == "discrete":
-            i = int(self._index(action, None)[0])
-            return {k: int(v[i]) for k, v in self.table.items()}
+            return dict(self._sparse[int(self._index(action, None)[0])])
         row = self._matrix(action, None)[0]
         return {
             k: (int(v) if integral else float(v))
