@@ -194,11 +194,21 @@ class MCTSPlanner(Planner):
             if fixed:
                 search.ids_depth = fixed
             elif self.budgets.fits("learning IDS's depth", IDS_SECONDS, "roll-outs, no IDS"):
-                if not states:
-                    rng = np.random.default_rng(None if seed is None else [seed, 1])
-                    train = training_states(sim, rng)
-                    states = [scalar.encode_state(train, i) for i in range(min(train.batch, 16))]
-                depth = search.learn_ids(states, session.model.horizon or 40, st.ids_timeout)
+                walked = states
+
+                def learn() -> int:
+                    # (the depth that first takes too long is searched to its end: on
+                    # HVAC 2023 #7 over 100 s, hence the worker thread and its deadline)
+                    learning = walked
+                    if not learning:
+                        rng = np.random.default_rng(None if seed is None else [seed, 1])
+                        train = training_states(sim, rng)
+                        n = min(train.batch, 16)
+                        learning = [scalar.encode_state(train, i) for i in range(n)]
+                    return search.learn_ids(learning, session.model.horizon or 40, st.ids_timeout)
+
+                depth = self.budgets.within("learning IDS's depth", learn, 0, "roll-outs, no IDS")
+                search.ids_depth = depth
                 log.info("mcts: %s: IDS depth %d", session.instance, depth)
         if attach(search):
             log.info("mcts: %s: the trials in C", session.instance)

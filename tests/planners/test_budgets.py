@@ -460,3 +460,23 @@ def test_mcts_late_compile_goes_on_without_the_c_step(
     with pytest.raises(PlannerError, match="compiled=yes, but the C step is not built within"):
         strict.start_session(session_of(model))
     release.set()
+
+
+def test_mcts_thts_late_ids_learning_goes_on_with_roll_outs(
+    caplog: pytest.LogCaptureFixture, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from ippc.planners.mcts.thts import THTS
+
+    release = threading.Event()
+    monkeypatch.setattr(THTS, "learn_ids", lambda self, *a: release.wait(10.0) and 7)
+    model = tiny("trap")
+    planner = MCTSPlanner(startup="3", seed="1")
+    with caplog.at_level(logging.WARNING):
+        planner.start_session(session_of(model))
+    release.set()
+    if planner.engine != "thts":
+        pytest.skip("no C compiler here: the thts engine does not run")
+    assert "start-up: learning IDS's depth skipped (learning IDS's depth did not end within" in (
+        caplog.text
+    )
+    assert planner._thts is not None and planner._thts.ids_depth == 0
