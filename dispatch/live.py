@@ -280,7 +280,7 @@ class DispatchLive:
         self._emit(events)
 
     def _on_action(self, kind: str, data: dict[str, Any]) -> None:
-        # a noop dispatched on a turn without an action (the dispatcher's, not the planner's)
+        # a noop dispatched on a turn where no action ran (the dispatcher's, not the planner's)
         what = "noop" if data.get("action") == f"{Handlers.NOOP}()" else "action"
         with self._lock:
             if kind == "action-started":
@@ -313,14 +313,12 @@ class DispatchLive:
     def _count_view(self) -> dict[str, Any]:
         """Under the lock: the actions table's rows, counted (every row it ever had)."""
         ended = {k: v for k, v in self._counts.items() if k[0] == "action"}
-        planner = sum(ended.values()) + sum(
-            1 for a in self._running.values() if a["kind"] == "action"
-        )
+        running = sum(1 for a in self._running.values() if a["kind"] == "action")
         return {
             # the planner's actions: dispatched or refused (`DispatchStats.executed_total`
             # once their turn is over)
-            "actions": planner,
-            "running": len(self._running),
+            "actions": sum(ended.values()) + running,
+            "running": running,
             "succeeded": ended.get(("action", "succeeded"), 0),
             # of them, those that ended otherwise (`DispatchStats.failed_actions`)
             "not_succeeded": sum(n for (_, st), n in ended.items() if st != "succeeded"),

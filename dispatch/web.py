@@ -155,7 +155,7 @@ def _counts_fields(c: Mapping[str, Any]) -> dict[str, Any]:
     """The actions' counts, as the Actions table's rows (every one it ever had)."""
     ended = ", ".join(f"{n} {st}" for st, n in c["by_status"].items())
     running = f", {c['running']} running" if c["running"] else ""
-    noop = f"{c['noop']} noop dispatched on turns without an action"
+    noop = f"{c['noop']} noop dispatched on turns where no action ran (none sent, or refused)"
     if c["noop_not_succeeded"]:
         noop += f" ({c['noop_not_succeeded']} did not succeed)"
     return {
@@ -324,7 +324,7 @@ def _index(live: DispatchLive) -> str:
         h(
             "p",
             "Every action the planner sent (dispatched to its handler, or refused as its"
-            " precondition was false) and every noop dispatched on a turn without one;"
+            " precondition was false) and every noop dispatched on a turn where none ran;"
             f" the counts above are of every row, the table keeps the last {ACTIONS_SHOWN}.",
             class_="muted",
         ),

@@ -218,3 +218,145 @@ def test_chromium_sees_the_turns_advance(tmp_path: Path) -> None:
             except subprocess.TimeoutExpired:
                 proc.kill()
                 proc.wait(5)
+
+
+def test_the_counts_are_the_tables_rows_and_the_reports_figures() -> None:
+    """Actions refused for a precondition are rows of the table too, and the page's
+    counts are its rows: the planner's actions and those that did not succeed agree
+    with the run's report, the noop dispatched on the turns where none ran apart."""
+    from ippc.dispatch.live import DispatchLive
+    from ippc.dispatch.run import build_simulation
+    from ippc.dispatch.web import _fields, _rows
+
+    kb = KnowledgeBase.from_files(DOMAIN, ONE)
+    # the hall-office door is locked (the planner's task still has it open): every
+    # move the planner sends there is refused, its precondition false
+    kb.apply([Update("set", "CONNECTED", ("hall", "office"), False)], "setup")
+    _, dispatcher = build_simulation(kb, 1)
+    live = DispatchLive(dispatcher)
+    report = trio.run(
+        lambda: dispatch_session(dispatcher, PlannerSpec("exact"), server_config(rounds=1))
+    )
+    snap = live.snapshot()
+    rows = dict(_rows(snap)["actions"])
+    fields = _fields(snap)
+    counts = snap["counts"]
+    refused = [c for c in rows.values() if c["state"] == "precondition-false"]
+    noops = [c for c in rows.values() if c["action"] == "noop()"]
+    assert report.executed_total == len(refused) == counts["actions"] > 0
+    assert report.failed_actions == counts["not_succeeded"] == len(refused)
+    assert len(rows) == counts["actions"] + counts["noop"]
+    assert len(noops) == counts["noop"] == report.turns  # (no action ran on any turn)
+    assert all("move(?r, ?x, ?y) => (robot-at(?r, ?x)" in c["message"] for c in refused)
+    assert fields["actions"] == f"{len(refused)} ({len(refused)} precondition-false)"
+    assert fields["not-succeeded"] == len(refused)
+    assert fields["reached"] == "not reached yet" and not report.goal_reached
+
+
+ROBOT_HOLDS = """
+import trio
+from ippc.dispatch.actions import Result, Status
+from ippc.kb import Update
+
+def setup(robot):
+    failed = []
+
+    @robot.handler("*")
+    async def act(d):
+        await trio.sleep(0.1)
+        if d.action.name == "pickup" and not failed:
+            failed.append(d.action)
+            return Result(Status.FAILED, "the gripper slipped")
+        return True
+
+    @robot.handler("noop")
+    async def wait(d):
+        if robot.kb.goal_holds():
+            await trio.sleep(60)  # delivered: the page stays as it is while a test looks
+        # the sender turns up while the robot waits (a sensor would say so)
+        robot.kb.apply([Update("set", "present", ("office",), True)], "desk-sensor")
+        await trio.sleep(0.1)
+        return True
+"""
+
+ACTIONS_JS = """
+const text = f => { const el = document.querySelector('[data-page-field="' + f + '"]');
+                    return el ? el.textContent : null; };
+const rows = [...document.querySelectorAll('tbody[data-table="actions"] tr')].map(tr => {
+  const get = f => tr.querySelector('[data-field="' + f + '"]').textContent;
+  return {action: get('action'), state: get('state'), turn: get('turn')};
+});
+return {rows: rows, actions: text('actions'), not_succeeded: text('not-succeeded'),
+        noop: text('noop'), goal: text('goal'), reached: text('reached')};
+"""
+
+
+@pytest.mark.alone  # a browser and a robot on the wall clock
+def test_chromium_sees_counts_that_agree_with_the_table_and_the_outcome(tmp_path: Path) -> None:
+    """The robot delivers under --no-stop-at-goal, then its noop handler holds: in
+    Chromium the page's counts are its table's rows, the goal is shown reached after
+    the drop's turn, and the run's report (after SIGTERM) says the same."""
+    browser = headless_chromium()
+    from selenium.common.exceptions import WebDriverException
+
+    robot = tmp_path / "robot.py"
+    robot.write_text(ROBOT_HOLDS)
+    cmd = [sys.executable, "-m", "ippc.dispatch.cli", str(DOMAIN), str(ONE), "--robot", str(robot)]
+    cmd += ["--planner", "exact", "--port", "0", "--web", "0", "--no-stop-at-goal"]
+    cmd += ["--action-timeout", "120"]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        assert proc.stdout is not None
+        line = proc.stdout.readline()
+        assert line.startswith("web view on http://127.0.0.1:"), (line, proc.stderr)
+        browser.get(line.split(" on ", 1)[1].strip())
+        deadline = time.monotonic() + 90
+        last = None
+        while True:  # until delivered and the page settles (the noop that holds runs)
+            assert time.monotonic() < deadline, f"the page did not settle: {last}"
+            assert proc.poll() is None, proc.communicate()
+            try:
+                view = browser.execute_script(ACTIONS_JS)
+            except WebDriverException:
+                view = None
+            if (
+                view is not None
+                and view["goal"] == "delivered: holds"
+                and view["rows"]
+                and view["rows"][0]["state"] == "running"
+                and view["rows"][0]["action"] == "noop()"
+                and view == last
+            ):
+                break
+            last = view
+            time.sleep(0.5)
+        rows = view["rows"]  # newest first
+        planner = [r for r in rows if r["action"] != "noop()"]
+        noops = [r for r in rows if r["action"] == "noop()"]
+        failed = [r for r in planner if r["state"] not in ("succeeded", "running")]
+        assert [r["action"] for r in reversed(planner)] == [
+            "move(r1,hall,office)",
+            "pickup(r1)",
+            "pickup(r1)",
+            "move(r1,office,hall)",
+            "move(r1,hall,lab)",
+            "drop(r1)",
+        ]
+        assert view["actions"] == f"{len(planner)} (1 failed, {len(planner) - 1} succeeded)"
+        assert view["not_succeeded"] == str(len(failed)) == "1"
+        assert view["noop"] == (
+            f"{len(noops)} noop dispatched on turns where no action ran (none sent, or refused)"
+        )
+        drop = next(r for r in rows if r["action"] == "drop(r1)")
+        assert view["reached"] == f"goal reached (it held after turn {drop['turn']})"
+        assert console_errors(browser) == []
+        proc.send_signal(signal.SIGTERM)
+        out, err = proc.communicate(timeout=30)
+        # the run's report: the same actions, the same failure, the goal reached
+        assert "goal reached: " in out, (out, err)
+        assert "1 failed action(s)" in out
+    finally:
+        browser.quit()
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait(5)
