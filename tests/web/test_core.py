@@ -296,3 +296,32 @@ def test_web_options() -> None:
     for web, host in ((None, "127.0.0.1"), (70000, None), (80, "not an address")):
         with pytest.raises(click.BadParameter):
             WebOptions.from_cli(web, host)
+
+
+def test_a_cell_with_its_own_state_and_link() -> None:
+    from ippc.web import cell
+
+    table = live_table(
+        "grid",
+        [("name", "name"), ("job", "job")],
+        [("k", {"name": HOSTILE, "job": cell(HOSTILE, state="failed", href="/job/a%40b")})],
+        state_field=None,
+    )
+    assert HOSTILE not in table and table.count(ESCAPED) == 2
+    assert '<td data-field="job" data-state="failed"><a href="/job/a%40b">' in table
+    assert cell(1.23456789, state="running") == {"text": "1.235", "state": "running"}
+    for bad in ("//evil.example/x", "javascript:alert(1)", "http://x/"):
+        with pytest.raises(ValueError):
+            cell("x", href=bad)
+    # the event carries the cell as it is (live.js sets its text, state and link)
+    event = rows_event([("grid", "k", {"job": cell("done", state="finished", href="/j")})])
+    assert event["rows"][0]["cells"]["job"] == {"text": "done", "state": "finished", "href": "/j"}
+
+
+def test_a_page_names_its_layout_and_a_sparkline_its_scale() -> None:
+    assert 'data-layout="abc"' in page("t", layout="abc", events="/events")
+    assert "data-layout" not in page("t")
+    svg = sparkline([3.0, -2.5, 7.25], label="rewards", x_start=4)
+    # the highest and lowest value at the left, the first and last index below
+    for label in (">7.25</text>", ">-2.5</text>", ">4</text>", ">6</text>"):
+        assert label in svg, label
