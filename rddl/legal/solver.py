@@ -9,7 +9,7 @@ import logging
 import math
 import weakref
 from collections import OrderedDict
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from typing import Protocol
 
 import numpy as np
@@ -66,7 +66,13 @@ class LegalActions:
     >>> legal.sample(state, rng, 10)    # ten uniform draws
     """
 
-    def __init__(self, sim: SimulatorView, node_limit: int = 2000, cache_size: int = 4096) -> None:
+    def __init__(
+        self,
+        sim: SimulatorView,
+        node_limit: int = 2000,
+        cache_size: int = 4096,
+        fixed: Iterable[tuple[str, tuple[int, ...]]] = (),
+    ) -> None:
         real = [p.name for p in sim.action_fluents if p.range == "real"]
         if real:
             raise LegalActionsUnsupported(
@@ -93,6 +99,14 @@ class LegalActions:
         self._dtypes = {
             p.name: np.bool_ if p.range == "bool" else np.int64 for p in self.layout.fluents
         }
+        self.fixed: frozenset[int] = frozenset(
+            self.layout.offset[name]
+            + (int(np.ravel_multi_index(idx, self.layout.shape[name])) if idx else 0)
+            for name, idx in fixed
+        )
+        """Action variables held at their default (a planner's groundings that can
+        never matter): the spaces are those of the other variables, so a sample
+        is drawn among the joint actions that leave these alone."""
 
     @staticmethod
     def supports(sim: SimulatorView) -> bool:
@@ -175,7 +189,9 @@ class LegalActions:
         domains: list[Domain] = []
         for v in range(n):
             p = self.layout.fluent_of[v]
-            if p.range == "bool":
+            if v in self.fixed:
+                domains.append((defaults[v],))
+            elif p.range == "bool":
                 domains.append((0, 1))
             elif p.range in self.layout.codes:
                 domains.append(tuple(range(len(self.model.types[p.range].members))))
