@@ -1,11 +1,13 @@
 """`mcts`: trial-based tree search (THTS, as PROST's).
 
 Two engines (option `engine`). `thts`, the default, searches one trial at
-a time on the grounded one-state step of `ippc.rddl.sim.scalar`, with
-probed equivalent-action pruning, an exact last step, solved labelling and
-IDS on the most-likely determinisation: its module `thts` is its theory of
-operation. Where that step cannot be written (`ScalarUnsupported`, a POMDP)
-a session runs `wave`, described below.
+a time on the grounded one-state step of `ippc.rddl.sim.scalar` compiled
+to C, with probed equivalent-action pruning, an exact last step, solved
+labelling and IDS on the most-likely determinisation: its module `thts` is
+its theory of operation, and the search itself is C (csrc/tree.c over
+csrc/kernels.c), written once. Where that step cannot be written or built
+(`ScalarUnsupported`, a POMDP, no C compiler, `compiled = no`) or
+`reward_locks` is on, a session runs `wave`, described below.
 
 Theory of operation of `wave`. Every turn the planner grows a search graph from the
 current state with the compiled simulator as its model, in the spirit of
@@ -80,8 +82,11 @@ approximation).
 The package, one job per module: `options` (the options and their typed
 `Settings`), `stats` (the counters), `tree` (nodes, UCB1, backups, the
 final choice), `actions` (the action library, candidates, rollout actions),
-`rollouts` (expanding leaves with batched rollouts), `thts` (the
-single-state engine) and `planner` (the session, the turn, the roots and
+`rollouts` (expanding leaves with batched rollouts), `heuristic` (the
+wave engine's batched IDS), `locks` (reward locks), `rows` (a batch's row
+keys), `ckernels` (the compiled step with the search's C), `thts` (the
+single-state engine's Python side), `ctree` (driving its tree in C) and
+`planner` (the session, the turn, the roots and
 the waves of trials).
 """
 

@@ -10,7 +10,7 @@ whole piece of work, and tree.c, the search itself (`ctree`).
   standard deviation at every Normal site: which actions are deterministic,
   which are equivalent (the same probabilities at every draw site reached,
   the same successors, rewards and ends under both probes);
-* `ids_values`, `ids_values_enum`: PROST's IDS on the most-likely
+* `ids_values`, `ids_values_enum`, `ids_values_cb`: PROST's IDS on the most-likely
   determinisation (every uniform 0.5, every normal 0) to a depth, with a
   cache of (depth, state) values kept across calls;
 * `enum_setup`, `enumerate`: the legal joint actions of a state, built from
@@ -28,14 +28,18 @@ Imports the compiled step (`rddl.sim.cstep`).
 from __future__ import annotations
 
 import ctypes
+import logging
 import threading
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 from ...rddl.sim.cstep import CStep
 from ...rddl.sim.scalar import ScalarStep
 
-__all__ = ["SOURCES", "Kernels", "kernel_source"]
+__all__ = ["CANDIDATES", "SOURCES", "Kernels", "kernel_source"]
+
+log = logging.getLogger(__name__)
 
 StateT = tuple[Any, ...]
 
@@ -65,6 +69,8 @@ def _library_lock(path: Path) -> threading.RLock:
 _D = ctypes.POINTER(ctypes.c_double)
 _I = ctypes.POINTER(ctypes.c_int)
 _U64 = ctypes.POINTER(ctypes.c_uint64)
+CANDIDATES = ctypes.CFUNCTYPE(ctypes.c_int, _D, _D, ctypes.c_int, _I)
+"""The C type of a candidates callback (`cands_fn` in kernels.c)."""
 
 
 class Kernels(CStep):
@@ -105,6 +111,17 @@ class Kernels(CStep):
             ctypes.c_long,
         ]
         lib.ippc_ids_values_enum.restype = ctypes.c_long
+        lib.ippc_ids_values_cb.argtypes = [
+            _D,
+            _D,
+            ctypes.c_int,
+            ctypes.c_void_p,
+            ctypes.c_int,
+            ctypes.c_double,
+            _D,
+            ctypes.c_long,
+        ]
+        lib.ippc_ids_values_cb.restype = ctypes.c_long
         lib.ippc_walk_enum.argtypes = [_D, ctypes.c_int, ctypes.c_double, _U64, _I]
         lib.ippc_walk_enum.restype = ctypes.c_double
         self._enum_k = 0
@@ -200,6 +217,60 @@ class Kernels(CStep):
                 self._load(state), kept, n_kept, depth, gamma, out, token
             )
         return list(out[:n_kept]), int(steps)
+
+    def ids_values_cb(
+        self,
+        state: StateT,
+        kept: Any,
+        n_kept: int,
+        candidates: Any,
+        depth: int,
+        gamma: float,
+        token: int,
+    ) -> tuple[list[float], int]:
+        """`ids_values` with every state's candidates from `candidates`, a
+        C callback (`ctree.CANDIDATES`: the tree's, asking the chooser)."""
+        out = (ctypes.c_double * max(1, n_kept))()
+        with self.lock:
+            steps = self.lib.ippc_ids_values_cb(
+                self._load(state),
+                kept,
+                n_kept,
+                ctypes.cast(candidates, ctypes.c_void_p),
+                depth,
+                gamma,
+                out,
+                token,
+            )
+        return list(out[:n_kept]), int(steps)
+
+    def candidates_callback(
+        self,
+        candidates: Callable[[StateT], list[int]],
+        action_of: Callable[[int], tuple[Any, ...]],
+    ) -> Any:
+        """A C `cands_fn` (kernels.c) over Python: a state's legal candidates
+        (library rows, from `candidates`, and their action vectors, from
+        `action_of`). Keep the object alive while C may call it."""
+        c = self
+        k, na = c.n_state, c.na
+        size = ctypes.sizeof(ctypes.c_double) * na
+
+        def fn(s: Any, out: Any, cap: int, idx: Any) -> int:
+            try:
+                rows = candidates(tuple(s[:k]))
+                if len(rows) > cap:
+                    return -len(rows)
+                base = ctypes.cast(out, ctypes.c_void_p).value or 0
+                for i, r in enumerate(rows):
+                    idx[i] = int(r)
+                    ctypes.memmove(base + i * size, c.action(action_of(int(r))), size)
+                return len(rows)
+            except Exception:  # noqa: BLE001 - C cannot take it: a dead end, logged
+                log.exception("mcts: the candidates of a state failed")
+                return 0
+
+        return CANDIDATES(fn)
 
     def ids_clear(self) -> None:
         with self.lock:

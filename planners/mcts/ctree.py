@@ -13,7 +13,7 @@ search, node for node:
 * expansion: every candidate probed under the two fixed draw vectors,
   equivalent actions dropped, the exact last step, sinks solved at once
   (and the session's `blind_weight` switch); first values by IDS on
-  the most-likely determinisation (scaled as `THTS._ids_values`) or by
+  the most-likely determinisation (scaled to the steps left) or by
   roll-outs (`rollout_policy`, `rollout_depth`, extrapolation);
 * trials: UCB1 over the unsolved actions, the exploration scaled by the
   node's largest |Q|, ties broken at random; one sampled outcome per level;
@@ -52,7 +52,6 @@ _D = ctypes.POINTER(ctypes.c_double)
 _I = ctypes.POINTER(ctypes.c_int)
 _L = ctypes.POINTER(ctypes.c_long)
 _POLICIES = {"random": 0, "noop": 1, "best": 2}
-_CANDS = ctypes.CFUNCTYPE(ctypes.c_int, _D, _D, ctypes.c_int, _I)
 log = logging.getLogger(__name__)
 
 
@@ -131,7 +130,7 @@ class CTree:
         self._callback: Any = None
         if candidates is not None:
             assert action_of is not None
-            self._callback = _CANDS(self._candidates_fn(candidates, action_of))
+            self._callback = c.candidates_callback(candidates, action_of)
         u1, z1, u2, z2 = probes
         flat = [*u1[: c.nu], *z1[: c.nz], *u2[: c.nu], *z2[: c.nz]]
         block = (ctypes.c_double * len(flat))(*flat)
@@ -185,33 +184,6 @@ class CTree:
         self._q = (ctypes.c_double * n)()
         self._n = (ctypes.c_long * n)()
         self._solved = (ctypes.c_int * n)()
-
-    def _candidates_fn(
-        self,
-        candidates: Callable[[tuple[Any, ...]], list[int]],
-        action_of: Callable[[int], tuple[Any, ...]],
-    ) -> Callable[..., int]:
-        """The C side's `cands_fn`: a state's legal candidates (library rows
-        and their action vectors) from the Python chooser."""
-        c = self.c
-        k, na = c.n_state, c.na
-        size = ctypes.sizeof(ctypes.c_double) * na
-
-        def fn(s: Any, out: Any, cap: int, idx: Any) -> int:
-            try:
-                rows = candidates(tuple(s[:k]))
-                if len(rows) > cap:
-                    return -len(rows)
-                base = ctypes.cast(out, ctypes.c_void_p).value or 0
-                for i, r in enumerate(rows):
-                    idx[i] = int(r)
-                    ctypes.memmove(base + i * size, c.action(action_of(int(r))), size)
-                return len(rows)
-            except Exception:  # noqa: BLE001 - C cannot take it: a dead end, logged
-                log.exception("mcts: the candidates of a state failed")
-                return 0
-
-        return fn
 
     def set_ids_depth(self, depth: int) -> None:
         self.lib.ctree_set_ids(self._ptr, depth)
@@ -279,12 +251,10 @@ class CTree:
 
 
 def attach(search: THTS) -> bool:
-    """Run `search`'s trials in C from now on, where they fit: the compiled
-    step with the kernels (`Kernels`), no reward-lock check.
-    Call it once IDS's depth is known. Returns whether it does."""
+    """Give `search` its tree in C (see the module docstring). Call it once
+    the candidates are set up (`THTS.setup_enum`) and IDS's depth is known.
+    Returns True (the tree always fits: static or state-dependent candidates)."""
     c = search.c
-    if c is None or search.locks is not None or not hasattr(c.lib, "ctree_new"):
-        return False
     seed = int(search.rng.integers(0, 2**63 - 1))
     common = (search.pool, search._probe_draws, search.st, search.gamma, seed, search._token)
     if search._static:

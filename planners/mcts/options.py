@@ -117,7 +117,8 @@ TABLE: tuple[Option, ...] = (
         "engine thts: the step and the search in C, built when the session starts with the "
         "system's C compiler ($CC, else cc, gcc or clang; cached in a private folder, "
         "$IPPC_CACHE or ~/.cache/ippc): auto (when a compiler is found and the instance "
-        "translates, else Python), yes (the session fails otherwise) or no",
+        "translates, else the wave engine), yes (the session fails otherwise) or no (the "
+        "wave engine)",
         choices=COMPILED,
         public=True,
     ),
@@ -276,8 +277,9 @@ TABLE: tuple[Option, ...] = (
         "reward_locks",
         "bool",
         False,
-        "a new node whose reward can no longer change (a dead end or a goal) is solved at "
-        "once (the check costs up to 0.1 s a state)",
+        "engine wave: a new node whose reward can no longer change (a dead end or a goal) "
+        "is solved at once (the check costs up to 0.1 s a state); with engine thts the "
+        "session runs the wave engine",
     ),
     Option(
         "enumerate_limit",

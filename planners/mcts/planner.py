@@ -111,16 +111,17 @@ class MCTSPlanner(Planner):
                 scalar = ScalarStep(sim)
             except ScalarUnsupported as err:
                 log.info("mcts: %s: no scalar step (%s); the wave search", session.instance, err)
-        if scalar is None:
+        if scalar is not None:
+            self.settings = budgets.size_thts(sim, self._asked)
+            self.settings = budgets.compile(scalar, self.settings)
+            self._thts = self._start_thts(session, scalar, seed)
+        if self._thts is None:
             self.settings = self._chooser.settings = budgets.size_wave(sim, self._asked)
             if budgets.fits("warming up the batched step", 1.0, "the first turn compiles it"):
                 self._warm_up(sim, self.settings.batch)
             ids, locks = budgets.heuristic(self.settings, lambda: self._heuristic(session))
             self._expander = Expander(sim, self._chooser, self.settings, self.rng, ids, locks)
         else:
-            self.settings = budgets.size_thts(sim, self._asked)
-            self.settings = budgets.compile(scalar, self.settings)
-            self._thts = self._start_thts(session, scalar, seed)
             self.engine = "thts"
         log.info(
             "mcts: %s, %s, engine %s%s, seed %s",
@@ -131,22 +132,34 @@ class MCTSPlanner(Planner):
             seed,
         )
 
-    def _start_thts(self, session: SessionInfo, scalar: ScalarStep, seed: int | None) -> THTS:
-        """The `thts` engine of this session: the reward-lock check when asked
-        for, and IDS's depth (fixed, or learned on random-walk states with
-        their own generator, so the search's draws stay those of the seed)."""
+    def _start_thts(
+        self, session: SessionInfo, scalar: ScalarStep, seed: int | None
+    ) -> THTS | None:
+        """The `thts` engine of this session: the C step with the search, and
+        IDS's depth (fixed, or learned on random-walk states with their own
+        generator, so the search's draws stay those of the seed). None where
+        it cannot run (no C step, `compiled=no`, `reward_locks`): the session
+        runs the wave engine then (docs/architecture.md, "mcts: one search
+        engine")."""
         st = self.settings
         sim = session.simulator
         assert self._chooser is not None
-        locks = None
         if st.reward_locks:
-            try:
-                table = IDS.for_model(session.model, enumerate_limit=st.enumerate_limit).table
-            except SimulationError as err:
-                log.warning("mcts: no reward-lock check for %s (%s)", session.instance, err)
-                table = None
-            if table is not None:
-                locks = RewardLocks(session.model, table)
+            log.info(
+                "mcts: %s: reward_locks: the wave engine (thts has no reward-lock check)",
+                session.instance,
+            )
+            return None
+        if st.compiled == "no":
+            log.info("mcts: %s: compiled=no: the wave engine", session.instance)
+            return None
+        try:
+            cstep = Kernels(scalar)
+        except CUnavailable as err:
+            if st.compiled == "yes":
+                raise PlannerError(f"mcts: compiled=yes, but no C step: {err}") from None
+            log.warning("mcts: %s: no C step (%s); the wave engine", session.instance, err)
+            return None
         # Equivalent actions are pruned in every new node, so the candidates
         # are the legal joint actions up to 8 x max_actions (TriangleTireworld
         # #5 has 813, of which a state keeps a handful) before a sample.
@@ -157,28 +170,16 @@ class MCTSPlanner(Planner):
             inert=self._skipped(session, scalar),
         )
         self._chooser = chooser
-        cstep = None
-        if st.compiled != "no":
-            try:
-                cstep = Kernels(scalar)
-            except CUnavailable as err:
-                if st.compiled == "yes":
-                    raise PlannerError(f"mcts: compiled=yes, but no C step: {err}") from None
-                log.info("mcts: %s: the Python step (%s)", session.instance, err)
-        self.compiled = cstep is not None
-        search = THTS(sim, scalar, chooser, st, self.rng, self._discount(), locks, cstep)
+        self.compiled = True
+        search = THTS(sim, scalar, chooser, st, self.rng, self._discount(), cstep)
         # random-walk states (their own generator: the search's draws stay those of
         # the seed) to check the legal actions in C on and to learn IDS's depth on
         states: list[tuple[Any, ...]] = []
         assert self.budgets is not None
-        if (
-            cstep is not None
-            and (st.heuristic == "ids" or not search._static)
-            and self.budgets.fits(
-                "random-walk states (to check the legal actions in C on, to learn IDS on)",
-                ENUM_SECONDS + IDS_SECONDS,
-                "the Python solver's candidates",
-            )
+        if (st.heuristic == "ids" or not search._static) and self.budgets.fits(
+            "random-walk states (to check the legal actions in C on, to learn IDS on)",
+            ENUM_SECONDS + IDS_SECONDS,
+            "the Python solver's candidates",
         ):
             rng = np.random.default_rng(None if seed is None else [seed, 1])
             train = training_states(sim, rng)

@@ -1,14 +1,13 @@
-"""`mcts`'s thts engine with its step and inner loops in C (option
-`compiled`, `rddl/sim/cstep.py`): the option's values, the fallback to the
-Python step where no C step can be built (a failing or missing compiler)
-and the session failing instead with `compiled=yes`; and the Python tree
-over the C step's kernels (probing, IDS, roll-outs, sampling), which runs
-where the trials in C (`planners/mcts/ctree.py`) do not fit (candidates
-that depend on the state, the reward-lock check): values against
-`exact`'s, the exact last step, equivalent actions, the same search for
-the same seed. test_mcts_thts.py checks the Python step and the trials in
-C the same way. (tests/conftest.py points IPPC_CACHE at the run's
-temporary folder.)"""
+"""`mcts`'s thts engine in C (option `compiled`; the step in
+`rddl/sim/cstep.py`, the search in planners/mcts/csrc): the option's values,
+the wave engine where no C step can be built (a failing or missing compiler)
+or `compiled=no`, and the session failing instead with `compiled=yes`; then
+the C tree where the candidates depend on the state (tiny_gated: the
+chooser's candidates through a callback, IDS through it too) and on
+tiny_trap: values against `exact`'s, the exact last step, equivalent
+actions against the Python reference (tests/planners/thts_reference.py),
+the same search for the same seed. (tests/conftest.py points IPPC_CACHE at
+the run's temporary folder.)"""
 
 from __future__ import annotations
 
@@ -20,15 +19,14 @@ import pytest
 from ippc.planners import PlannerError, SessionInfo
 from ippc.planners.exact import solve
 from ippc.planners.mcts import MCTSPlanner
-from ippc.planners.mcts.thts import THTS, TNode
 from ippc.rddl import Model, load_model, load_pair
 from ippc.rddl.sim.cstep import find_compiler
-from ippc.rddl.simulator import Simulator, State
+from ippc.rddl.simulator import Simulator
 
 from ..conftest import ippc_files
 from . import test_mcts_search
 from .test_mcts import observe
-from .test_mcts_thts import EQUIVALENT, names
+from .test_mcts_thts import EQUIVALENT, names, planner_on, root_of
 
 models = test_mcts_search.models  # the tiny domains (a fixture)
 
@@ -39,44 +37,24 @@ def sysadmin() -> Model:
     return load_pair(*ippc_files("IPPC2011", "SysAdmin", 1))
 
 
-def planner_on(model: Model, **options: str) -> tuple[MCTSPlanner, Simulator]:
-    """The planner with the Python tree over the C step's kernels: what a
-    session with reward locks runs; elsewhere the trials run in C
-    (`ctree.attach`, tested in test_mcts_thts.py and test_mcts_ctree.py), so
-    the C tree is dropped here to test this path."""
-    sim = Simulator(model)
-    planner = MCTSPlanner(engine="thts", **options)
-    planner.start_session(SessionInfo(model.name, model, sim, rounds=1, time_allowed=60.0, seed=1))
-    if planner._thts is not None:
-        planner._thts.tree = None
-    planner.start_round(1)
-    return planner, sim
-
-
-def python_tree(planner: MCTSPlanner) -> THTS:
-    """The session's search, checked to run the Python tree over the C step."""
-    search = planner._thts
-    assert search is not None and planner.compiled
-    assert search.c is not None and search.tree is None
-    return search
-
-
-def root_of(planner: MCTSPlanner, state: State, steps: int) -> TNode:
-    search = python_tree(planner)
-    return search.table[steps][search.fast.encode_state(state)]
-
-
 @needs_cc
 @pytest.mark.parametrize(
     "value,compiled", [("yes", True), ("auto", True), ("on", True), ("no", False), ("off", False)]
 )
-def test_the_option_picks_the_step(value: str, compiled: bool) -> None:
-    planner, sim = planner_on(sysadmin(), compiled=value, iterations="20", seed="1")
-    assert planner.engine == "thts"
+def test_the_option_picks_the_engine(value: str, compiled: bool) -> None:
+    """yes (on) and auto: the search in C; no (off): the wave engine."""
+    model = sysadmin()
+    planner = start(model, compiled=value, iterations="20", seed="1")
+    sim = Simulator(model)
+    planner.start_round(1)
+    assert planner.engine == ("thts" if compiled else "wave")
     assert planner.compiled is compiled
-    assert planner._thts is not None and (planner._thts.c is not None) is compiled
+    assert (planner._thts is not None) is compiled
+    if compiled:
+        assert planner._thts is not None and planner._thts.tree is not None
     acts = planner.act(observe(sim, sim.initial_state(1), 1))
-    assert isinstance(acts, list) and planner.last_turn.trials == 20
+    assert isinstance(acts, list)
+    assert (planner.last_turn.trials if compiled else planner.last_turn.waves) == 20
 
 
 def test_a_bad_value_is_an_option_error() -> None:
@@ -94,22 +72,27 @@ def start(model: Model, **options: str) -> MCTSPlanner:
 
 @pytest.mark.parametrize("broken", ["failing", "missing"])
 def test_without_a_c_step_auto_falls_back_and_yes_fails(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, broken: str
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    caplog: pytest.LogCaptureFixture,
+    broken: str,
 ) -> None:
     """CC=false (every build fails) or CC naming no program, with an empty
-    cache: `compiled=auto` runs the Python step (and plays), `compiled=yes`
-    fails the session's start naming why; `compiled=no` never asks."""
+    cache: `compiled=auto` runs the wave engine (and plays), with a warning
+    naming why; `compiled=yes` fails the session's start naming why;
+    `compiled=no` never asks."""
     monkeypatch.setenv("IPPC_CACHE", str(tmp_path / "cache"))
     monkeypatch.setenv("CC", "false" if broken == "failing" else str(tmp_path / "no-cc"))
     why = "false failed" if broken == "failing" else "no C compiler"
     model = sysadmin()
-    planner = start(model, compiled="auto", iterations="20")
-    assert planner.engine == "thts" and planner.compiled is False
-    assert planner._thts is not None and planner._thts.c is None
+    with caplog.at_level("WARNING", logger="ippc.planners.mcts.planner"):
+        planner = start(model, compiled="auto", iterations="20")
+    assert planner.engine == "wave" and planner.compiled is False and planner._thts is None
+    assert f"no C step ({why}" in caplog.text and "the wave engine" in caplog.text
     sim = Simulator(model)
     planner.start_round(1)
     assert isinstance(planner.act(observe(sim, sim.initial_state(1), 1)), list)
-    assert planner.last_turn.trials == 20
+    assert planner.last_turn.waves == 20
     with pytest.raises(PlannerError, match=f"compiled=yes, but no C step: {why}"):
         start(model, compiled="yes", iterations="20")
     assert start(model, compiled="no", iterations="20").compiled is False
@@ -117,7 +100,7 @@ def test_without_a_c_step_auto_falls_back_and_yes_fails(
 
 # work pays 3 but may tire (p 0.5); a tired worker may not work (a
 # precondition that reads the state: the candidates depend on the state, so
-# the trials stay in Python); rest recovers with p 0.8
+# the C tree asks the chooser through a callback); rest recovers with p 0.8
 GATED = """
 domain tiny_gated {
     requirements = { concurrent, preconditions };
@@ -176,26 +159,24 @@ def check_root_values(model: Model, steps_left: int, **options: str) -> None:
 @needs_cc
 @pytest.mark.parametrize("heuristic", ["rollout", "ids"])
 @pytest.mark.parametrize("steps_left", [2, 5])
-def test_python_tree_over_the_c_step_values_near_exact(
+def test_c_tree_values_near_exact(
     models: dict[str, Model], gated: Model, heuristic: str, steps_left: int
 ) -> None:
-    """tiny_trap with the reward-lock check (its dead state is a lock) and
-    tiny_gated (state-dependent candidates: IDS in Python over the typed
-    states, the probes of each node's own candidates in C)."""
-    check_root_values(models["tiny_trap_inst"], steps_left, heuristic=heuristic, reward_locks="yes")
+    """tiny_trap and tiny_gated (state-dependent candidates: IDS's
+    recursion and each node's probes over the chooser's candidates of its
+    state, through the callback)."""
+    check_root_values(models["tiny_trap_inst"], steps_left, heuristic=heuristic)
     check_root_values(gated, steps_left, heuristic=heuristic)
 
 
 @needs_cc
-def test_python_tree_over_the_c_step_last_step_and_pruning(
+def test_c_tree_last_step_and_pruning_as_the_reference(
     models: dict[str, Model], gated: Model, tmp_path: Path
 ) -> None:
     """The last step's values are the rewards, solved at once; a tired
     worker's root has no `work`; of press-a and press-b one is kept, with
-    press-c, press-d and noop, as with the Python step."""
-    planner, sim = planner_on(
-        models["tiny_trap_inst"], iterations="50", compiled="yes", reward_locks="yes"
-    )
+    press-c, press-d and noop, as with the Python reference."""
+    planner, sim = planner_on(models["tiny_trap_inst"], iterations="50", compiled="yes")
     state = sim.initial_state(1)
     planner.act(observe(sim, state, 10, 1))
     root = root_of(planner, state, 1)
@@ -214,14 +195,10 @@ def test_python_tree_over_the_c_step_last_step_and_pruning(
     model = load_model(tmp_path / "equivalent.rddl")
     found = {}
     for compiled in ("yes", "no"):
-        planner, sim = planner_on(
-            model, iterations="200", seed="3", compiled=compiled, reward_locks="yes"
-        )
+        planner, sim = planner_on(model, iterations="200", seed="3", compiled=compiled)
         state = sim.initial_state(1)
         planner.act(observe(sim, state, 1, 5))
-        search = planner._thts
-        assert search is not None and search.tree is None
-        node = search.table[5][search.fast.encode_state(state)]
+        node = root_of(planner, state, 5)
         found[compiled] = sorted(tuple(names(planner, sim, r)) for r in node.rows)
     assert found["yes"] == found["no"]
     one = [k for k in found["yes"] if k in (("press-a = true",), ("press-b = true",))]
@@ -231,7 +208,7 @@ def test_python_tree_over_the_c_step_last_step_and_pruning(
 
 def _play(model: Model, options: dict[str, str], turns: int) -> tuple[list[Any], list[Any]]:
     planner, sim = planner_on(model, **options)
-    python_tree(planner)
+    assert planner._thts is not None and planner._thts.tree is not None
     rng = np.random.default_rng(4)
     state = sim.initial_state(1)
     chosen: list[list[str]] = []
@@ -250,9 +227,10 @@ def _play(model: Model, options: dict[str, str], turns: int) -> tuple[list[Any],
 
 @needs_cc
 @pytest.mark.parametrize("heuristic", ["rollout", "ids"])
-def test_the_same_seed_gives_the_same_search_over_the_c_step(gated: Model, heuristic: str) -> None:
-    """With `iterations` and a seed, two sessions of the Python tree over
-    the C step search alike (the same trials, expansions and simulated
+def test_the_same_seed_gives_the_same_search_with_state_dependent_candidates(
+    gated: Model, heuristic: str
+) -> None:
+    """With `iterations` and a seed, two sessions of the C tree search alike (the same trials, expansions and simulated
     steps, the same root values: the C generator is seeded from the
     search's) and choose alike; another seed searches otherwise."""
     options = {"iterations": "60", "seed": "11", "compiled": "yes", "heuristic": heuristic}

@@ -20,13 +20,17 @@ from ippc.rddl.simulator import Simulator, State
 from ..conftest import ippc_files
 from . import test_mcts_search
 from .test_mcts import observe
+from .thts_reference import ReferencePlanner
 
 models = test_mcts_search.models  # the tiny domains (a fixture)
 
 
 def planner_on(model: Model, **options: str) -> tuple[MCTSPlanner, Simulator]:
+    """mcts's thts engine on `model`: the C tree, or with `compiled="no"` the
+    Python reference of the same search (tests/planners/thts_reference.py)."""
     sim = Simulator(model)
-    planner = MCTSPlanner(engine="thts", **options)
+    kind = ReferencePlanner if options.get("compiled") == "no" else MCTSPlanner
+    planner = kind(engine="thts", **options)
     planner.start_session(SessionInfo(model.name, model, sim, rounds=1, time_allowed=60.0, seed=1))
     planner.start_round(1)
     if options.get("compiled") == "yes":  # the C tree where it fits (these domains)
@@ -35,17 +39,17 @@ def planner_on(model: Model, **options: str) -> tuple[MCTSPlanner, Simulator]:
 
 
 def root_of(planner: MCTSPlanner, state: State, steps: int) -> TNode:
-    """The node of `state` after a turn: the Python tree's, or the view of
-    the C tree's (`compiled=yes`)."""
+    """The node of `state` after a turn: the reference tree's (`compiled=no`),
+    or the view of the C tree's."""
     search = planner._thts
     assert search is not None
     key = search.fast.encode_state(state)
-    if search.tree is not None:
+    if getattr(search, "tree", None) is not None:  # (the reference has no C tree)
         return search.root(key, steps)
     return search.table[steps][key]
 
 
-# the Python tree, and the trials in C (planners/mcts/ctree.py)
+# the Python reference of the search, and the search in C (planners/mcts/csrc/tree.c)
 COMPILED = pytest.mark.parametrize("compiled", ["no", "yes"])
 
 

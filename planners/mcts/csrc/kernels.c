@@ -305,6 +305,17 @@ long ippc_ids_values_enum(const double *S, const double *KEPT, int n, int depth,
     return steps;
 }
 
+/* `ippc_ids_values` with the candidates of every state from the caller's `cb`
+   (state-dependent legality: the chooser's candidates, as the tree's nodes get them). */
+long ippc_ids_values_cb(const double *S, const double *KEPT, int n, cands_fn cb, int depth,
+                        double gamma, double *OUT, long token) {
+    cands_fn before = IDS_CB;
+    IDS_CB = cb;
+    long steps = ippc_ids_values(S, KEPT, n, 0, 0, depth, gamma, OUT, token);
+    IDS_CB = before;
+    return steps;
+}
+
 /* A roll-out of up to `n` steps from S: noop (npool 0) or actions drawn
    uniformly from POOL (redrawn up to 8 times where illegal in the state,
    then noop). *TAKEN: the steps made, negated when the run ended. */

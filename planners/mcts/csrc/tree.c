@@ -163,7 +163,7 @@ static long get_node(tree *t, const double *S, int steps, int done) {
     return i;
 }
 
-/* the discounted number of steps in n (THTS._horizon) */
+/* the discounted number of steps in n */
 static double horizon_of(double g, int n) { return g == 1.0 ? (double)n : (1.0 - pow(g, n)) / (1.0 - g); }
 
 static double extrapolated(double total, int taken, int steps, double g) {
