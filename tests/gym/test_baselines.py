@@ -74,5 +74,6 @@ def test_needs_same_step_autoreset() -> None:
     vec = SB3VecEnv(envs)
     assert vec.num_envs == 2 and vec.get_attr("horizon") == [40, 40]
     assert vec.env_is_wrapped(VecMonitor) == [False, False]
+    assert vec.env_method("render", indices=[1]) == [None]  # no render_mode
     with pytest.raises(ValueError, match="Discrete"):
         vec.step(np.array([0, 11]))

@@ -171,3 +171,15 @@ def test_made_through_gymnasium_and_wrapping_an_env() -> None:
         FlatRDDLEnv(inner, actions="dict")
     with pytest.raises(ValueError, match="every action fluent to be a bool"):
         FlatRDDLEnv(GYMTEST, actions="multibinary")
+
+
+def test_where_noop_is_illegal_the_discrete_space_leaves_it_out() -> None:
+    # PushYourLuck 2018: exactly one of roll or cash-out each step; noop is illegal
+    env = FlatRDDLEnv("PushYourLuck_ippc2018", "1")
+    assert env.action_space == gymnasium.spaces.Discrete(2)
+    assert [env.flat.action(i) for i in range(2)] == [{"roll___d1": 1}, {"cash-out": 1}]
+    env.reset(seed=0)
+    env.action_space.seed(0)
+    for _ in range(10):
+        assert env.action_masks().tolist() == [True, True]
+        assert env.step(env.action_space.sample())[4] == {"illegal_action": False}
