@@ -5,6 +5,9 @@ an illegal or malformed flat action does."""
 
 from __future__ import annotations
 
+import subprocess
+import sys
+
 import gymnasium
 import numpy as np
 import pytest
@@ -183,3 +186,15 @@ def test_where_noop_is_illegal_the_discrete_space_leaves_it_out() -> None:
     for _ in range(10):
         assert env.action_masks().tolist() == [True, True]
         assert env.step(env.action_space.sample())[4] == {"illegal_action": False}
+
+
+def test_importing_ippc_gym_does_not_import_stable_baselines3() -> None:
+    # stable-baselines3 (and torch) are the optional rl extra: only ippc.gym.baselines needs them
+    code = (
+        "import sys, ippc.gym; "
+        "print(sorted(m for m in ('stable_baselines3', 'torch') if m in sys.modules))"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, timeout=120, check=True
+    )
+    assert out.stdout.strip() == "[]"
