@@ -13,7 +13,7 @@ from ..rddl.legal import LegalActions, solver_for
 from ..rddl.simulator import SimulationError, Simulator, State
 from ..rddl.wire import WireCodec
 from .base import Observation, Planner, PlannerError, SessionInfo, WireFluent
-from .budget import OneAtATime
+from .budget import OneAtATime, guarded_turn
 from .rddlsim_random import RandomConcurrentPolicy, Stuck
 
 log = logging.getLogger(__name__)
@@ -52,6 +52,10 @@ class RandomPlanner(Planner):
     POMDPs: no actions in a turn without observations (as Java); else the
     constraints are checked against the initial state, as the Java client's
     own state never leaves it.
+
+    A turn whose choice is not made by the turn's deadline plus a margin
+    (`budget.guarded_turn`) sends noop, with a warning (the choice goes on in
+    the background, and the generator with it).
     """
 
     name: ClassVar[str] = "random"
@@ -70,6 +74,7 @@ class RandomPlanner(Planner):
             raise self._option_error("when_stuck", stuck, "one of stop, legal")
         self.when_stuck = stuck
         self.policy: RandomConcurrentPolicy | None = None
+        self._turns = OneAtATime("random: a turn")
         self._rng: np.random.Generator | None = None
         self._initial: State | None = None
         self._codec: WireCodec | None = None
@@ -78,6 +83,7 @@ class RandomPlanner(Planner):
         super().start_session(session)
         seed = self.seed if self.seed is not None else (session.seed or 0)
         self.policy = RandomConcurrentPolicy(session.simulator, seed)
+        self._turns = OneAtATime("random: a turn")
         self._rng = np.random.default_rng(seed)
         self._initial = session.simulator.initial_state(1)
         self._codec = WireCodec(session.simulator)
@@ -85,6 +91,12 @@ class RandomPlanner(Planner):
     def act(self, obs: Observation) -> list[WireFluent]:
         if self.session is None or self.policy is None or self._rng is None:
             raise PlannerError("random: act() called before start_session()")
+        # (in a worker thread: where a choice takes longer than the turn, as on
+        # RecSim 2023 #7's 125,000 groundings, the turn sends noop instead)
+        return guarded_turn(self._turns, "random", obs.turn, obs.deadline, lambda: self._act(obs))
+
+    def _act(self, obs: Observation) -> list[WireFluent]:
+        assert self.session is not None and self.policy is not None
         if obs.state is not None:
             state: State | None = obs.state
         else:
