@@ -29,6 +29,7 @@ viewers` over `no web` (what the view costs).
 from __future__ import annotations
 
 import argparse
+import json
 import re
 import selectors
 import socket
@@ -38,6 +39,7 @@ import sys
 import tempfile
 import threading
 import time
+import urllib.request
 from pathlib import Path
 from typing import Any
 
@@ -305,8 +307,8 @@ def bench(args: argparse.Namespace) -> None:
 
 def screenshots(folder: Path) -> None:
     """docs/web-server.png and docs/web-session.png: three sessions (one
-    running slowly, one finished, one failed, under a hostile name) seen in
-    headless chromium."""
+    running slowly, one finished, one failed, under a hostile name) and a
+    connection for an unknown instance, seen in headless chromium."""
     from selenium import webdriver
     from selenium.webdriver.chrome.options import Options
     from selenium.webdriver.chrome.service import Service
@@ -330,6 +332,13 @@ def screenshots(folder: Path) -> None:
             b"<action-arg>p1</action-arg><action-value>true</action-value></action></actions>\0"
         )
         failed.close()
+        # a connection for an instance the server does not serve (counted as refused)
+        unknown = socket.create_connection(("127.0.0.1", port))
+        unknown.sendall(_request("no_such_instance", "typo"))
+        unknown.settimeout(10)
+        while unknown.recv(65536):
+            pass
+        unknown.close()
         # a running one, slowly
         thread = threading.Thread(
             target=_session,
@@ -341,7 +350,7 @@ def screenshots(folder: Path) -> None:
 
         options = Options()
         options.binary_location = "/usr/bin/chromium"
-        for arg in ("--headless=new", "--no-sandbox", "--disable-gpu", "--window-size=1500,520"):
+        for arg in ("--headless=new", "--no-sandbox", "--disable-gpu", "--window-size=1500,760"):
             options.add_argument(arg)
         driver = webdriver.Chrome(service=Service("/usr/bin/chromedriver"), options=options)
         try:
@@ -352,7 +361,9 @@ def screenshots(folder: Path) -> None:
             time.sleep(2)
             driver.save_screenshot(str(folder / "web-server.png"))
             driver.set_window_size(1300, 1400)
-            driver.get(f"http://127.0.0.1:{web_port}/session/3")
+            with urllib.request.urlopen(f"http://127.0.0.1:{web_port}/sessions.json") as r:
+                slow = [x["id"] for x in json.loads(r.read()) if x["client"] == "mcts (slow)"]
+            driver.get(f"http://127.0.0.1:{web_port}/session/{slow[0]}")
             time.sleep(2.5)
             driver.save_screenshot(str(folder / "web-session.png"))
         finally:
