@@ -266,7 +266,7 @@ async def run_session(
             )
             result.rounds.append(rnd)
             log.info(
-                "round %d: reward %s in %d turns%s",
+                "round %d: reward %.4f in %d turns%s",
                 rnd.round,
                 rnd.reward,
                 rnd.turns,
