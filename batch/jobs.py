@@ -34,7 +34,7 @@ import tempfile
 import threading
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import partial
 from pathlib import Path
 from typing import Any
@@ -298,6 +298,7 @@ def play_job(
     memory = job.memory_mb
     if memory is None:
         memory = default_memory_budget(os.cpu_count() or 1)
+        job = replace(job, memory_mb=memory)  # the planner sizes itself from it
     limit = job.timeout + job.grace
     # loading and checking the instance comes first and is not the session's time: the
     # limit starts again when the server opens the session
@@ -452,6 +453,7 @@ async def _play_client(job: Job, host: str, port: int) -> str | None:
     cls = find_planner(spec.planner)
     if "seed" in cls.options and "seed" not in options:
         options["seed"] = str(job.planner_seed)
+    _planner_memory(job, cls.options, options)
     try:
         agent = make_planner(spec.planner, options)
     except PlannerError as err:
@@ -489,6 +491,18 @@ async def _play_client(job: Job, host: str, port: int) -> str | None:
         log.debug("planner %s raised", spec.label, exc_info=True)
         return f"the planner raised {_leaf_text(err)}"
     return None
+
+
+#: Share of a job's memory budget given to a planner that sizes its working memory
+#: (its option ``memory``, MiB) when the experiment does not set it: the rest is the
+#: process itself (Python, the server, the compiled instance).
+PLANNER_MEMORY_SHARE = 0.75
+
+
+def _planner_memory(job: Job, declared: dict[str, str], options: dict[str, str]) -> None:
+    """Give a planner that declares a ``memory`` option its share of the job's budget."""
+    if job.memory_mb is not None and "memory" in declared and "memory" not in options:
+        options["memory"] = f"{max(1.0, PLANNER_MEMORY_SHARE * job.memory_mb):.0f}"
 
 
 def _leaf_text(err: BaseException) -> str:
@@ -606,8 +620,10 @@ def _run_against(job: Job, started: float) -> JobResult:
     assert job.server is not None and job.planner.planner is not None
     host, port = job.server
     options = dict(job.planner.options)
-    if "seed" in find_planner(job.planner.planner).options and "seed" not in options:
+    declared = find_planner(job.planner.planner).options
+    if "seed" in declared and "seed" not in options:
         options["seed"] = str(job.planner_seed)
+    _planner_memory(job, declared, options)
     agent = make_planner(job.planner.planner, options)
     hard = job.timeout + HARD_LIMIT_GRACE
     if isinstance(agent, ExternalPlanner):

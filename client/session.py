@@ -376,6 +376,14 @@ def run_session_guarded(
             return float(msg[1]) + grace
         return None
 
+    options = dict(options)
+    if memory_mb is not None:
+        from ..planners.base import find_planner
+
+        # a planner that sizes its working memory gets most of the budget (the rest
+        # is the process: Python, the model, the simulator)
+        if "memory" in find_planner(planner).options and "memory" not in options:
+            options["memory"] = f"{max(1.0, 0.75 * memory_mb):.0f}"
     out = run_guarded(
         "ippc.client.session:_session_in_child",
         (config, planner, options),

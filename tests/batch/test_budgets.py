@@ -122,3 +122,22 @@ def test_runaway_planners_are_stopped_recorded_and_the_batch_goes_on(
         jobs["stuck"].reason,
     ), jobs["stuck"].reason
     assert jobs["hog"].reason.startswith("out of memory: ")
+
+
+def test_a_planner_that_sizes_its_memory_gets_its_share_of_the_jobs_budget(
+    tmp_path: Path,
+) -> None:
+    from ippc.batch import load_experiment, run_batch
+
+    exp = tmp_path / "sized.toml"
+    exp.write_text(
+        f'name = "sized"\nrounds = 1\ntimeout = 60\ninstances = ["{INSTANCE}"]\n'
+        '[planners.mcts]\nplanner = "mcts"\noptions = { iterations = "2" }\n'
+    )
+    db = tmp_path / "sized.sqlite"
+    logs = tmp_path / "logs"
+    summary = run_batch(load_experiment(exp), db, jobs=1, memory_mb=400, log_dir=logs)
+    assert (summary.finished, summary.failed) == (3, 0)
+    log = (logs / "mcts@print_jobs_inst_1.session.log").read_text()
+    # 75% of the job's 400 MB, through the planner's option `memory`
+    assert "memory budget 300 MiB (option memory)" in log, log

@@ -193,3 +193,31 @@ def test_rddl_client_kills_a_planner_over_its_memory_budget(
         r"budget of 300 MB; killed\n",
         done.stderr,
     ), done.stderr
+
+
+@pytest.mark.alone
+def test_rddl_client_gives_a_planner_that_sizes_its_memory_its_share(
+    server: tuple[int, Path], plugins: dict[str, str]
+) -> None:
+    port, _ = server
+    done = subprocess.run(
+        [
+            str(CLIENT),
+            "--port",
+            str(port),
+            "--instance",
+            "corridor_enum_inst_1",
+            "--planner",
+            "mcts",
+            "--planner-option",
+            "iterations=2",
+            "--memory-budget",
+            "400",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        env=plugins,
+    )
+    # 75% of 400 MB through mcts's option `memory` (whatever the 3 s session's end)
+    assert "memory budget 300 MiB (option memory)" in done.stderr, done.stderr
