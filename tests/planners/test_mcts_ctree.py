@@ -1,8 +1,9 @@
 """The thts engine's trials in C (`planners/mcts/ctree.py`) where the legal
 actions depend on the state: each new node asks the Python chooser for its
 candidates through a callback. The root keeps exactly the legal actions,
-the values near `exact`'s, and the C tree against the Python tree on a
-corpus domain with state-dependent preconditions."""
+the values near `exact`'s, and the C tree on a corpus domain with
+state-dependent preconditions: legal root actions, the same choices for a
+seed."""
 
 from __future__ import annotations
 
