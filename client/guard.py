@@ -13,6 +13,8 @@ process (``python -m ippc.client.guard``) and watches it from the calling thread
 * memory: the child's resident memory is read from ``/proc`` every `poll` seconds and
   the child is killed (SIGKILL) as soon as it is over the budget; a ``MemoryError``
   inside the child is reported the same way;
+* an orphan: a child whose caller died (killed with SIGKILL, or a Dask worker that
+  was ended) ends itself within a second;
 * the child's messages (progress, a session's budget) come back over a pipe of their
   own, length-prefixed pickles, so whatever the planner prints goes to `log_path`.
 
@@ -302,6 +304,17 @@ def _child(fd: int) -> int:
         raise SystemExit(143)
 
     signal.signal(signal.SIGTERM, terminated)
+    # a caller that dies (kill -9 of the batch, a Dask worker ended) cannot stop us:
+    # we end ourselves once we are an orphan, whatever the planner is doing
+    parent = os.getppid()
+
+    def orphaned() -> None:
+        while True:
+            time.sleep(0.5)
+            if os.getppid() != parent:
+                os._exit(1)
+
+    threading.Thread(target=orphaned, name="guard-orphan", daemon=True).start()
     # the caller owns Ctrl-C (a terminal sends it to the whole group: ours is our own)
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     target, arg = pickle.load(sys.stdin.buffer)

@@ -64,6 +64,14 @@ def wait_forever(arg, send):
         time.sleep(1.0)
 
 
+def report_pid(arg, send):
+    import os
+
+    send(("pid", os.getpid()))
+    while True:
+        time.sleep(1.0)
+
+
 def allocate(arg, send):
     Hog().start_session(None)
 

@@ -9,6 +9,7 @@ import select
 import signal
 import subprocess
 import sys
+import time
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -221,3 +222,42 @@ def test_rddl_client_gives_a_planner_that_sizes_its_memory_its_share(
     )
     # 75% of 400 MB through mcts's option `memory` (whatever the 3 s session's end)
     assert "memory budget 300 MiB (option memory)" in done.stderr, done.stderr
+
+
+def _alive(pid: int) -> bool:
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().rsplit(")", 1)[1].split()[0] != "Z"  # a zombie is gone
+    except OSError:
+        return False
+
+
+def test_a_child_whose_caller_is_killed_ends_itself(plugins: dict[str, str]) -> None:
+    caller = subprocess.Popen(
+        [
+            sys.executable,
+            "-c",
+            "from ippc.client.guard import run_guarded\n"
+            "run_guarded('ippc_runaway_planners:report_pid', None, seconds=600, memory_mb=None,"
+            " on_message=lambda m: print(m[1], flush=True))\n",
+        ],
+        stdout=subprocess.PIPE,
+        text=True,
+        env=plugins,
+    )
+    try:
+        assert caller.stdout is not None
+        ready, _, _ = select.select([caller.stdout], [], [], 60)
+        assert ready, "the child never said its pid"
+        child = int(caller.stdout.readline())
+        assert _alive(child)
+        caller.send_signal(signal.SIGKILL)  # the caller cannot stop anything now
+        caller.wait(10)
+        deadline = time.monotonic() + 30
+        while _alive(child):
+            assert time.monotonic() < deadline, "the orphan is still running"
+            time.sleep(0.1)
+    finally:
+        if caller.poll() is None:
+            caller.kill()
+            caller.wait(10)
