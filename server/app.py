@@ -123,13 +123,29 @@ async def serve(
             if svc.budget is not None:
                 nursery.start_soon(svc.budget.run)
 
+            # each connection's cancel scope and session, to close an idle
+            # one when the cap is reached (`evict`)
+            playing: dict[int, tuple[trio.CancelScope, list[Session]]] = {}
+
             async def handler(stream: trio.SocketStream, key: int) -> None:
+                scope = trio.CancelScope()
+                started: list[Session] = []
+                playing[key] = (scope, started)
                 try:
-                    await play_connection(svc, stream)
+                    with scope:
+                        await play_connection(svc, stream, started=started.append)
                 finally:
+                    playing.pop(key, None)
                     table.remove(key)
                 if config.individual_session:
                     nursery.cancel_scope.cancel()
+
+            def evict(key: int) -> bool:
+                scope, started = playing.get(key, (None, []))
+                if scope is None or (started and started[0].requested):
+                    return False
+                scope.cancel()
+                return True
 
             pacer = AcceptPacer(config.accept_rate)
 
@@ -138,7 +154,9 @@ async def serve(
                 return config.individual_session
 
             for listener in listeners:
-                nursery.start_soon(accept_connections, listener, svc, table, pacer, keys, take)
+                nursery.start_soon(
+                    accept_connections, listener, svc, table, pacer, keys, take, evict
+                )
             task_status.started(port)
     finally:
         close_services(svc, reason, close=owned)
@@ -152,8 +170,10 @@ async def accept_connections(
     pacer: AcceptPacer,
     keys: Iterator[int],
     take: Callable[[trio.SocketStream, int], bool],
+    evict: Callable[[int], bool] | None = None,
 ) -> None:
-    """`server.listener.accept_connections` with `svc`'s notices; a
+    """`server.listener.accept_connections` with `svc`'s notices (and
+    `evict`, to close idle connections to make room); a
     connection closed before its session-request is numbered as rddlsim
     numbers it, and counted. (rddl-server's listener and rddl-dispatch's.)"""
 
@@ -164,7 +184,7 @@ async def accept_connections(
             f"session {sid} ({host}): the client closed the connection before its session-request",
         )
 
-    await listen(listener, svc.notices, table, pacer, keys, take, empty)
+    await listen(listener, svc.notices, table, pacer, keys, take, empty, evict)
 
 
 def connection_table(config: ServerConfig) -> ConnectionTable:

@@ -37,6 +37,10 @@ BUFFER_ALLOWANCE = 64 * 1024
 # connections the kernel queues for the listener: with the accept pacing, a
 # flood beyond it waits in its own connects (rddlsim's Java listener: 50)
 LISTEN_BACKLOG = 128
+# seconds a connection without a session is safe from being closed to make
+# room for a new one when the cap is reached (a client sends its
+# session-request at once; one that has not after this is idle)
+IDLE_GRACE = 1.0
 # seconds between summaries of repeated notices
 NOTICE_INTERVAL = 10.0
 # notices of one cause logged in full per interval before they are counted
@@ -132,6 +136,11 @@ def closed_already(sock: Any) -> bool:
         raw.detach()  # the descriptor stays the caller's
 
 
+IDLE_EVICTED = (
+    "connections closed to make room: the cap was reached and they had no session"
+    " after 1 s (the oldest first)"
+)
+
 EMPTY_CLOSE = (
     "connections closed before a session-request:"
     " the client closed the connection before its session-request"
@@ -156,12 +165,54 @@ class ConnectionTable:
     max_total: int
     max_per_address: int
     allow: tuple[Network, ...] = ()
+    # seconds a connection may stay without a session before it may be
+    # closed to make room for a new one (see `oldest_idle`)
+    min_idle_age: float = IDLE_GRACE
     _by_key: dict[int, str] = field(default_factory=dict)
     _per_address: Counter[str] = field(default_factory=Counter)
+    _opened: dict[int, float] = field(default_factory=dict)  # key -> monotonic time
+    _in_session: set[int] = field(default_factory=set)
+    _evicting: set[int] = field(default_factory=set)
+    _asked: set[int] = field(default_factory=set)  # asked to close if idle, no answer yet
 
     @property
     def open(self) -> int:
         return len(self._by_key)
+
+    def full(self) -> bool:
+        """Whether the cap in total is reached (connections being closed
+        to make room do not count)."""
+        return len(self._by_key) - len(self._evicting) >= self.max_total
+
+    def in_session(self, key: int) -> None:
+        """Connection `key` has its session: never closed to make room."""
+        if key in self._by_key:
+            self._in_session.add(key)
+        self._evicting.discard(key)
+        self._asked.discard(key)
+
+    def oldest_idle(self, now: float | None = None) -> int | None:
+        """The connection open the longest (at least `min_idle_age`) that
+        has no session yet and is not being closed already, or None."""
+        now = time.monotonic() if now is None else now
+        for key, since in self._opened.items():  # (in the order they came)
+            if now - since < self.min_idle_age:
+                return None
+            if key not in self._in_session | self._evicting | self._asked:
+                return key
+        return None
+
+    def asked(self, key: int) -> None:
+        """Connection `key` is asked to close if it is idle (in another
+        process): not asked again; its place counts until it closes."""
+        if key in self._by_key:
+            self._asked.add(key)
+
+    def evicting(self, key: int) -> None:
+        """Connection `key` is being closed to make room: its place counts
+        as free from now on."""
+        if key in self._by_key:
+            self._evicting.add(key)
 
     def refusal(self, host: str) -> tuple[str, str] | None:
         """Why a connection from `host` is refused now, as (cause, detail),
@@ -171,7 +222,7 @@ class ConnectionTable:
             if addr is None or not any(addr in net for net in self.allow):
                 why = "address not in --allow"
                 return (f"connections refused: {why}", f"connection from {host} refused: {why}")
-        if len(self._by_key) >= self.max_total:
+        if self.full():
             why = f"cap of {self.max_total} open connections reached"
             return (f"connections refused: {why}", f"connection from {host} refused: {why}")
         if self._per_address[host] >= self.max_per_address:
@@ -182,9 +233,14 @@ class ConnectionTable:
     def add(self, key: int, host: str) -> None:
         self._by_key[key] = host
         self._per_address[host] += 1
+        self._opened[key] = time.monotonic()
 
     def remove(self, key: int) -> None:
         host = self._by_key.pop(key, None)
+        self._opened.pop(key, None)
+        self._in_session.discard(key)
+        self._evicting.discard(key)
+        self._asked.discard(key)
         if host is None:
             return
         self._per_address[host] -= 1
