@@ -13,7 +13,7 @@ from ..rddl.legal import LegalActions, solver_for
 from ..rddl.simulator import SimulationError, Simulator, State
 from ..rddl.wire import WireCodec
 from .base import Observation, Planner, PlannerError, SessionInfo, WireFluent
-from .budget import OneAtATime, guarded_turn
+from .budget import OneAtATime, guarded_turn, noop_legal
 from .rddlsim_random import RandomConcurrentPolicy, Stuck
 
 log = logging.getLogger(__name__)
@@ -93,7 +93,14 @@ class RandomPlanner(Planner):
             raise PlannerError("random: act() called before start_session()")
         # (in a worker thread: where a choice takes longer than the turn, as on
         # RecSim 2023 #7's 125,000 groundings, the turn sends noop instead)
-        return guarded_turn(self._turns, "random", obs.turn, obs.deadline, lambda: self._act(obs))
+        return guarded_turn(
+            self._turns,
+            "random",
+            obs.turn,
+            obs.deadline,
+            lambda: self._act(obs),
+            noop_legal(self.session.simulator, obs.state),
+        )
 
     def _act(self, obs: Observation) -> list[WireFluent]:
         assert self.session is not None and self.policy is not None

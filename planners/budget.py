@@ -42,7 +42,7 @@ from typing import TypeVar
 
 import numpy as np
 
-from ..rddl.simulator import Simulator
+from ..rddl.simulator import Simulator, State
 
 log = logging.getLogger(__name__)
 
@@ -308,6 +308,10 @@ class OneAtATime:
     def __init__(self, what: str) -> None:
         self.what = what
         self._worker: threading.Thread | None = None
+        self._box: dict[str, object] = {}
+        self.was_busy = False
+        """Whether the last `call` found a late piece still running (else it
+        started its own)."""
         self.late = 0
         """Pieces that did not end in time (or could not start: one was still running)."""
 
@@ -315,14 +319,27 @@ class OneAtATime:
         """Whether a late piece is still running."""
         return self._worker is not None and self._worker.is_alive()
 
+    def finish(self) -> object:
+        """Wait for the late piece to end; its result (an exception of it is
+        raised here)."""
+        box = self._box
+        if self._worker is not None:
+            self._worker.join()
+            self._worker = None
+        if "error" in box:
+            raise box["error"]  # type: ignore[misc]
+        return box.get("value")
+
     def call(self, fn: Callable[[], T], seconds: float) -> tuple[bool, T | None]:
         """(True, `fn()`) when it ends within `seconds`; (False, None) when it
         does not, or when an earlier late piece is still running. An
         exception of `fn` is raised here."""
-        if self.busy():
+        self.was_busy = self.busy()
+        if self.was_busy:
             self.late += 1
             return False, None
         box: dict[str, object] = {}
+        self._box = box
 
         def work() -> None:
             try:
@@ -332,7 +349,7 @@ class OneAtATime:
 
         worker = threading.Thread(target=work, name=self.what, daemon=True)
         worker.start()
-        worker.join(max(0.0, seconds))
+        worker.join(None if seconds == float("inf") else max(0.0, seconds))
         if worker.is_alive():
             self._worker = worker
             self.late += 1
@@ -349,17 +366,38 @@ docs/planners-budgets.md)."""
 
 
 def guarded_turn(
-    runner: OneAtATime, who: str, turn: int, deadline: float, fn: Callable[[], list[T]]
+    runner: OneAtATime,
+    who: str,
+    turn: int,
+    deadline: float,
+    fn: Callable[[], list[T]],
+    noop_legal: Callable[[], bool] | None = None,
 ) -> list[T]:
     """`fn()` (a turn's actions) if it ends by `deadline` (or now, when that
     has passed) plus a margin (`TURN_MARGIN`, or the turn's own time when
     that is longer), else noop (`[]`) with a warning; the late turn finishes in the
-    background, and the turns meanwhile send noop too (`OneAtATime`)."""
+    background, and the turns meanwhile send noop too (`OneAtATime`). Where
+    `noop_legal` says noop is illegal in this turn's state (ChromaticDice),
+    an illegal noop would end the round: the turn waits for its search instead."""
     left = max(0.0, deadline - time.monotonic())
     margin = max(TURN_MARGIN, left)
     ok, actions = runner.call(fn, left + margin)
     if ok:
         assert actions is not None
+        return actions
+    if noop_legal is not None and not noop_legal():
+        log.warning(
+            "%s: turn %d: no action by the turn's deadline (plus %.2f s), and noop is illegal "
+            "here: waiting for the search",
+            who,
+            turn,
+            margin,
+        )
+        if not runner.was_busy:
+            return runner.finish()  # type: ignore[return-value]
+        runner.finish()  # an earlier turn's, dropped
+        ok, actions = runner.call(fn, float("inf"))
+        assert ok and actions is not None
         return actions
     log.log(
         logging.WARNING if runner.late == 1 else logging.DEBUG,
@@ -371,3 +409,18 @@ def guarded_turn(
         runner.late,
     )
     return []
+
+
+def noop_legal(sim: Simulator, state: State | None) -> Callable[[], bool]:
+    """Whether noop is legal in `state` (asked only when a turn is late;
+    True without a state, as in a POMDP's turn)."""
+
+    def legal() -> bool:
+        if state is None:
+            return True
+        try:
+            return bool(sim.check_actions(state, sim.noop(1))[0])
+        except Exception:  # noqa: BLE001 - a check that fails: noop is not known legal
+            return False
+
+    return legal

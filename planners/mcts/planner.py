@@ -23,7 +23,7 @@ from ...rddl.sim.scalar import ScalarStep, ScalarUnsupported
 from ...rddl.simulator import SimulationError, Simulator, State
 from ...rddl.wire import WireCodec, WireError
 from ..base import Observation, Planner, PlannerError, SessionInfo, WireFluent
-from ..budget import guarded_turn
+from ..budget import guarded_turn, noop_legal
 from .actions import ActionChooser, ActionLibrary, _row_keys
 from .ckernels import Kernels
 from .ctree import attach
@@ -348,7 +348,15 @@ class MCTSPlanner(Planner):
         deadline = obs.deadline
         if self.settings.time_per_step is not None:
             deadline = min(time.monotonic() + self.settings.time_per_step, obs.deadline)
-        return guarded_turn(self.budgets.turns, "mcts", obs.turn, deadline, lambda: self._act(obs))
+        assert self._sim is not None
+        return guarded_turn(
+            self.budgets.turns,
+            "mcts",
+            obs.turn,
+            deadline,
+            lambda: self._act(obs),
+            noop_legal(self._sim, obs.state),
+        )
 
     def _act(self, obs: Observation) -> list[WireFluent]:
         if (

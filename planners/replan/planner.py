@@ -25,6 +25,7 @@ from ..budget import (
     describe_bytes,
     guarded_turn,
     memory_budget,
+    noop_legal,
     rows_within,
     state_bytes,
     step_cost,
@@ -307,7 +308,14 @@ class ReplanPlanner(Planner):
         deadline = obs.deadline
         if self.time_per_step is not None:
             deadline = min(deadline, time.monotonic() + self.time_per_step)
-        return guarded_turn(self._turns, "replan", obs.turn, deadline, lambda: self._act(obs))
+        return guarded_turn(
+            self._turns,
+            "replan",
+            obs.turn,
+            deadline,
+            lambda: self._act(obs),
+            noop_legal(self.session.simulator, obs.state),
+        )
 
     def _act(self, obs: Observation) -> list[WireFluent]:
         assert self.session is not None and self._codec is not None

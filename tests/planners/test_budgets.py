@@ -480,3 +480,27 @@ def test_mcts_thts_late_ids_learning_goes_on_with_roll_outs(
         caplog.text
     )
     assert planner._thts is not None and planner._thts.ids_depth == 0
+
+
+def test_a_late_turn_waits_for_its_search_where_noop_is_illegal(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    from ippc.planners.budget import guarded_turn
+
+    runner = OneAtATime("test")
+    release = threading.Timer(1.0, lambda: None)
+    release.start()
+
+    def search() -> list[str]:
+        release.join()
+        return ["move"]
+
+    with caplog.at_level(logging.WARNING):
+        got = guarded_turn(runner, "test", 1, time.monotonic() - 1.0, search, lambda: False)
+    assert got == ["move"]  # the late search's own action, not an illegal noop
+    assert "noop is illegal here: waiting for the search" in caplog.text
+    assert not runner.busy()
+    late = threading.Timer(1.5, lambda: None)
+    late.start()
+    assert guarded_turn(runner, "test", 2, 0.0, lambda: late.join() or ["x"], lambda: True) == []
+    late.join()
