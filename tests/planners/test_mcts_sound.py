@@ -351,9 +351,9 @@ def test_generated_domains_fast_sample(tmp_path: Path) -> None:
 
 
 @pytest.mark.slow
-def test_generated_domains_python_tree(tmp_path: Path) -> None:
-    # the same shortcuts in the pure-Python tree (compiled=no; about 5 s of
-    # CPU a round here, so slow)
+def test_generated_domains_without_the_c_step(tmp_path: Path) -> None:
+    # without the C step (compiled=no) mcts runs its wave engine: the same
+    # candidates, legal and within the tolerance too (slow: seconds a round)
     gaps = check_seeds(range(8), tmp_path, rounds=1, compiled="no")
     assert len(gaps) >= 4
 
