@@ -32,7 +32,7 @@ What it measures
 Usage
     python bench/planner_budgets.py                          # everything, about 40 minutes
     python bench/planner_budgets.py --years 2011 --planners mcts,replan --out part.jsonl
-    python bench/planner_budgets.py --table part.jsonl other.jsonl   # print a table only
+    python bench/planner_budgets.py --table part.jsonl rerun.jsonl   # the table (reruns win)
     python bench/planner_budgets.py --recsim                 # RecSim 2023 #7 with mcts only
 """
 
@@ -241,6 +241,42 @@ def table(rows: list[dict[str, Any]]) -> str:
     return "\n".join(lines)
 
 
+def compact(rows: list[dict[str, Any]]) -> str:
+    """One row per instance, one column per planner: seconds to the first
+    action / peak RSS in MiB; **bold** past the budget; "refused" where the
+    planner declined the instance; the footnotes say what the planners skipped."""
+    planners: list[str] = []
+    by_instance: dict[str, dict[str, dict[str, Any]]] = {}
+    for r in rows:
+        if r["planner"] not in planners:
+            planners.append(r["planner"])
+        by_instance.setdefault(r["instance"], {})[r["planner"]] = r
+    lines = [
+        "| instance | " + " | ".join(planners) + " |",
+        "|---|" + "---|" * len(planners),
+    ]
+    for name, got in by_instance.items():
+        cells = []
+        for p in planners:
+            r = got.get(p)
+            if r is None:
+                cells.append("")
+                continue
+            first = r.get("first")
+            late = first is None or first > r.get("budget", 0.0)
+            took = f"{first:.2f} s" if first is not None else "-"
+            cell = f"{took} / {r.get('rss', 0.0):.0f}"
+            if "killed" in r.get("error", ""):
+                cell = f"killed / {r.get('rss', 0.0):.0f}"
+            elif r.get("error"):
+                cell += " refused" if p == "exact" else " error"
+            if late and not r.get("error"):
+                cell = f"**{cell}**"
+            cells.append(cell)
+        lines.append(f"| {name} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
@@ -259,6 +295,7 @@ def main() -> None:
         "--table", type=Path, nargs="+", help="print the table of these JSON-line files"
     )
     ap.add_argument("--recsim", action="store_true", help="RecSim 2023 #7 with mcts only")
+    ap.add_argument("--wide", action="store_true", help="--table: one row per planner and instance")
     args = ap.parse_args()
     if args.child:
         planner, domain, instance, step = args.child
@@ -266,7 +303,9 @@ def main() -> None:
         return
     if args.table:
         rows = [json.loads(line) for f in args.table for line in f.read_text().splitlines() if line]
-        print(table(rows))
+        # a later row of the same planner and instance (a rerun) replaces the earlier one
+        latest = {(r["instance"], r["planner"]): r for r in rows}
+        print((table if args.wide else compact)(list(latest.values())))
         return
     years = tuple(y.strip() for y in args.years.split(",") if y.strip())
     instances = largest_instances(("2023",) if args.recsim else years)
@@ -304,7 +343,7 @@ def main() -> None:
         f"# done {time.strftime('%H:%M UTC', time.gmtime())}, load {os.getloadavg()[0]:.2f}",
         file=sys.stderr,
     )
-    print(table(rows))
+    print((table if args.wide else compact)(rows))
 
 
 if __name__ == "__main__":

@@ -22,7 +22,7 @@ available when the session starts: MemAvailable of /proc/meminfo, and no
 more than that fraction of what an address-space limit (RLIMIT_AS) leaves).
 `step_cost` measures what one simulator step costs per state of a batch
 (every array the step allocates, temporaries included, traced with
-`tracemalloc` on a batch of 1 and of 4 states), so that a planner sizes its
+`tracemalloc` on a batch of 1 and of 3 states), so that a planner sizes its
 batches, trees and tables from the instance before it allocates them
 (`rows_within`, `count_within`).
 """
@@ -159,7 +159,7 @@ def state_bytes(sim: Simulator) -> int:
 
 def step_cost(sim: Simulator) -> StepCost:
     """`StepCost` of `sim`, measured on noop steps from the initial state
-    (batches of 1 and 4 states), with its own generator. A step that fails
+    (batches of 1 and 3 states), with its own generator. A step that fails
     (a noop that is illegal, a model the simulator rejects) is measured as
     far as it got."""
     one = state_bytes(sim)
@@ -168,7 +168,7 @@ def step_cost(sim: Simulator) -> StepCost:
     if not was_tracing:
         tracemalloc.start()
     try:
-        for rows in (1, 4):
+        for rows in (1, 3):
             state = sim.initial_state(rows)
             noop = sim.noop(rows)
             base, _ = tracemalloc.get_traced_memory()
@@ -184,7 +184,7 @@ def step_cost(sim: Simulator) -> StepCost:
     finally:
         if not was_tracing:
             tracemalloc.stop()
-    per_row = max(one, (peaks[1] - peaks[0]) // 3)
+    per_row = max(one, (peaks[1] - peaks[0]) // 2)
     fixed = max(0, peaks[0] - per_row)
     return StepCost(per_row=per_row, fixed=fixed, state=one)
 

@@ -108,7 +108,12 @@ class MCTSPlanner(Planner):
         scalar = None
         if self.settings.engine == "thts":
             try:
-                scalar = ScalarStep(sim)
+                scalar = budgets.within(
+                    "translating the instance into the scalar step",
+                    lambda: ScalarStep(sim),
+                    None,
+                    "the wave engine",
+                )
             except ScalarUnsupported as err:
                 log.info("mcts: %s: no scalar step (%s); the wave search", session.instance, err)
         if scalar is not None:

@@ -65,7 +65,7 @@ def size_wave(
     cost = step_cost(sim)
     half = budget // 2
     batch = rows_within(half, cost, settings.batch)
-    per_row = _seconds_per_row(sim, min(batch, 8))
+    per_row = _seconds_per_row(sim, min(batch, 4))
     if turn_seconds is not None and per_row > 0.0:
         by_time = int(0.25 * turn_seconds / per_row)
         batch = max(1, min(batch, by_time))

@@ -250,7 +250,7 @@ def test_mcts_thts_sizes_its_tree_to_the_budget() -> None:
     assert planner.settings.max_nodes == (MIB // 2) // sizing.node_bytes < 200_000
 
 
-def test_mcts_startup_of_zero_skips_the_compile_and_still_acts(
+def test_mcts_startup_of_zero_runs_the_wave_engine_and_still_acts(
     caplog: pytest.LogCaptureFixture,
 ) -> None:
     model = tiny("trap")
@@ -259,11 +259,12 @@ def test_mcts_startup_of_zero_skips_the_compile_and_still_acts(
     with caplog.at_level(logging.WARNING):
         planner.start_session(session_of(model, sim))
     assert planner.budgets is not None
-    assert planner.budgets.startup.skipped[0] == "compiling the C step"
-    assert "start-up: compiling the C step skipped (no start-up time left for compiling" in (
+    assert planner.budgets.startup.skipped[0] == "translating the instance into the scalar step"
+    assert "start-up: translating the instance into the scalar step skipped (no start-up time " in (
         caplog.text
     )
-    assert not planner.compiled and planner._asked.compiled == "auto"
+    assert "the wave engine" in caplog.text
+    assert planner.engine == "wave" and not planner.compiled
     planner.start_round(1)
     names = {name for name, _, _ in planner.act(first_turn(sim))}
     assert names <= {"safe", "risky"}
