@@ -21,6 +21,8 @@ address of loopback), one kind at a time:
              a terminator, 1 s apart
     bomb     20 connections sending an entity-expansion session-request
     flood    connections opened and closed as fast as 4 threads can
+    idle400  400 connections that send nothing, 40 from each of 127.0.0.2-11
+             (the cap in total, from the open-file limit, fills)
 
 With `--kb`, the knowledge base's JSON-lines socket instead (`rddl-kb`, the
 server of `rddl-dispatch --kb-port`): the attacks of bench/kb_attacks.py.
@@ -70,7 +72,7 @@ from server import (  # noqa: E402  (bench/server.py: the same instance, client 
 from server import start_ours as start_server  # noqa: E402
 
 ATTACKER = "127.0.0.2"
-ALL = ["silent", "drip", "half", "giant", "bomb", "flood"]
+ALL = ["silent", "drip", "half", "giant", "bomb", "flood", "idle400"]
 BOMB = (
     b'<?xml version="1.0"?><!DOCTYPE lolz [<!ENTITY lol "lol">'
     + b"".join(
@@ -167,10 +169,10 @@ class GoodClient:
 # ------------------------------------------------------------ the attacks
 
 
-def _connect() -> socket.socket | None:
+def _connect(source: str = ATTACKER) -> socket.socket | None:
     s = socket.socket()
     try:
-        s.bind((ATTACKER, 0))
+        s.bind((source, 0))
         s.settimeout(5)
         s.connect(("127.0.0.1", PORT[0]))
         s.settimeout(None)
@@ -218,6 +220,17 @@ class Attack:
 
     def _silent(self) -> None:
         self._hold(200)
+
+    def _idle400(self) -> None:
+        # 40 from each of 10 addresses: the cap in total fills, not the one
+        # per address
+        for i in range(400):
+            if self.stop.is_set():
+                return
+            s = _connect(f"127.0.0.{2 + i % 10}")
+            if s is not None:
+                self.opened += 1
+                self.socks.append(s)
 
     def _half(self) -> None:
         req = session_request("half")
