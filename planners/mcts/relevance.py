@@ -648,7 +648,7 @@ def useless_actions(
             # default keeps every grounding it reads (see the module
             # docstring); asked once the rest is settled, so that a grounding
             # useful for its own sake does not count as left out
-            grown = _kept_by(parts, useless, defaults, boolean) & useless
+            grown = frozenset(_kept_by(parts, useless, defaults, boolean) & useless)
             if not grown:
                 break
         useful |= grown
