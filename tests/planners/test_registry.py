@@ -67,7 +67,7 @@ def test_builtins_by_name() -> None:
 def test_unknown_name_lists_the_known_ones() -> None:
     with pytest.raises(
         PlannerError,
-        match=r"unknown planner 'nosuch' \(known planners: exact, fast-downward, mcts, noop, prost, random",
+        match=r"unknown planner 'nosuch' \(known planners: exact, fast-downward, mcts, mpc, noop, prost, random",
     ):
         find_planner("nosuch")
 
@@ -84,7 +84,16 @@ def test_third_party_entry_point(monkeypatch: pytest.MonkeyPatch) -> None:
 
 def test_builtins_without_package_metadata(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setattr(importlib.metadata, "entry_points", entry_points_with(keep_builtins=False))
-    assert planner_names() == ["exact", "mcts", "noop", "prost", "random", "replan", "uniform"]
+    assert planner_names() == [
+        "exact",
+        "mcts",
+        "mpc",
+        "noop",
+        "prost",
+        "random",
+        "replan",
+        "uniform",
+    ]
     assert find_planner("random") is RandomPlanner
 
     def broken(**kw: Any) -> Any:
