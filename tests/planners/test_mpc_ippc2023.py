@@ -6,7 +6,6 @@ turn deadline (late turns counted)."""
 from __future__ import annotations
 
 import time
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -125,3 +124,30 @@ def test_turns_end_before_their_deadline(domain: str) -> None:
     assert late <= 2, (late, slowest)  # a shared machine may stall a turn or two
     assert slowest < 1.0
     assert planner.stats["refits"] >= 20  # and it did search
+
+
+@pytest.mark.parametrize(
+    "folder",
+    [
+        "IPPC2011/SysAdmin/MDP",
+        "IPPC2018/ChromaticDice",
+        "IPPC2018/AcademicAdvising",
+        "IPPC2014/Wildfire/MDP",
+    ],
+)
+def test_discrete_domains_stay_legal(folder: str) -> None:
+    # not what mpc is for, but it plays them: max-nondef-actions kept by
+    # construction, other preconditions (ChromaticDice's "roll every die in
+    # phase roll1", where noop is illegal) repaired or replaced by a legal action
+    base = corpus_root() / "archive" / "competitions" / folder
+    model = load_pair(base / "domain.rddl", base / "instance1.rddl")
+    sim = Simulator(model)
+    planner = session(model, sim, samples="32", horizon="3", iterations="2")
+    codec = WireCodec(sim)
+    rng = np.random.default_rng(2)
+    state = sim.initial_state(1)
+    for turn in range(1, 6):
+        obs = Observation(None, state, turn, 10, 1e6, 0.0, float("inf"))
+        decoded = codec.actions_from(planner.act(obs))
+        assert bool(sim.check_actions(state, decoded.arrays)[0])
+        state = sim.step(state, decoded.arrays, rng, check=True).next_state
