@@ -4,7 +4,9 @@ SQLite store, the fake PROST as a real subprocess)."""
 
 from __future__ import annotations
 
+import logging
 import os
+import re
 import stat
 import time
 from pathlib import Path
@@ -142,7 +144,7 @@ def flaky_prost(tmp_path: Path, modes: list[str]) -> Path:
 
 
 def test_a_crashing_then_hanging_prost_is_restarted_until_one_plays(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
 ) -> None:
     prost = flaky_prost(tmp_path, ["crash", "hang", "normal"])
     actions = tmp_path / "actions.txt"
@@ -169,7 +171,22 @@ def test_a_crashing_then_hanging_prost_is_restarted_until_one_plays(
                 link=LinkPolicy(reconnect=True, silence=4.0, restart_delay=0.05),
             )
 
-    report = trio.run(main)
+    with caplog.at_level(logging.WARNING, logger="ippc.dispatch.run"):
+        report = trio.run(main)
+    # the restart lines say the wait that follows and its total since the
+    # planner ended (the wait for its session's end counts towards the delay)
+    waits = [
+        (float(m.group(1)), float(m.group(2)))
+        for r in caplog.records
+        if (
+            m := re.search(
+                r"starting it again in ([\d.]+) s \(([\d.]+) s after it ended\)", r.getMessage()
+            )
+        )
+    ]
+    assert len(waits) == 2
+    for left, total in waits:
+        assert 0 <= left <= total
     assert (prost / "starts").read_text().strip() == "3"
     assert report.planner_restarts == 2
     assert report.sessions == ["dropped", "dropped", "finished"]
