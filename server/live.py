@@ -29,7 +29,7 @@ import math
 import socket
 import time
 from collections import Counter, deque
-from collections.abc import Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -47,7 +47,7 @@ KEEP_SESSIONS = 1000  # sessions the board remembers (the oldest ended ones go f
 KEEP_ROUNDS = 1000  # rounds of a session it remembers (the last ones)
 LAST_TURNS = 20  # turns of a session shown on its page
 _TEXT = 300  # characters of a turn's actions shown
-STATE_TEXT = 4000  # characters of a turn's state (true fluents, changes) shown at most
+STATE_TEXT = 2000  # characters of a turn's state (true fluents, changes) shown at most
 _DATAGRAM = 60_000  # bytes of one record sent by a worker at most
 
 FAILED = {"dropped", "interrupted"}
@@ -73,28 +73,31 @@ def _name(name: Any, args: Iterable[Any]) -> str:
     return f"{name}({', '.join(map(str, args))})" if args else str(name)
 
 
-def _join(texts: list[str], limit: int) -> str:
-    """`texts` joined by spaces; past `limit` characters, the rest is counted, not cut."""
+def _join(items: Sequence[Any], show: Callable[[Any], str], limit: int) -> str:
+    """`show(item)` of the items, joined by spaces; past `limit` characters the rest
+    is counted, not formatted (a turn's state can have thousands of fluents)."""
     out: list[str] = []
     size = 0
-    for k, text in enumerate(texts):
+    for k, item in enumerate(items):
+        text = show(item)
         if out and size + len(text) + 1 > limit:
-            return " ".join(out) + f" \u2026 and {len(texts) - k} more"
+            return " ".join(out) + f" \u2026 and {len(items) - k} more"
         out.append(text)
         size += len(text) + 1
     return " ".join(out)
 
 
+def _show_fluent(item: Any) -> str:
+    try:
+        name, args, value = item
+    except (TypeError, ValueError):
+        return str(item)
+    return f"{_name(name, args)}={_value_text(value)}"
+
+
 def _fluents(items: Iterable[Any], limit: int = _TEXT) -> str:
     """`name(a, b)=value ...`, at most about `limit` characters (the rest counted)."""
-    texts = []
-    for item in items:
-        try:
-            name, args, value = item
-            texts.append(f"{_name(name, args)}={_value_text(value)}")
-        except (TypeError, ValueError):
-            texts.append(str(item))
-    return _join(texts, limit)
+    return _join(list(items), _show_fluent, limit)
 
 
 def _is_true(value: Any) -> bool:
@@ -106,14 +109,43 @@ def _is_true(value: Any) -> bool:
     return value is not None
 
 
-def _as_map(state: Any) -> dict[tuple[str, tuple[Any, ...]], Any]:
-    out: dict[tuple[str, tuple[Any, ...]], Any] = {}
-    for item in state or ():
-        try:
-            name, args, value = item
-        except (TypeError, ValueError):
-            continue
-        out[(str(name), tuple(args))] = value
+def _triples(state: Any) -> list[Any]:
+    # (the sessions' states are lists of (name, args, value) already)
+    return state if isinstance(state, list) else list(state or ())
+
+
+def _show_true(t: tuple[Any, Any, Any]) -> str:
+    return _name(t[0], t[1]) if t[2] is True else f"{_name(t[0], t[1])}={_value_text(t[2])}"
+
+
+def _show_change(change: tuple[Any, Any, Any, Any]) -> str:
+    name, args, old, new = change
+    return f"{_name(name, args)}: {_value_text(old)} \u2192 {_value_text(new)}"
+
+
+_ABSENT = object()
+
+
+def _changes(before: list[tuple[Any, Any, Any]], now: list[tuple[Any, Any, Any]]) -> list[Any]:
+    """(name, args, old, new) of what differs; the turns of a round list the same
+    fluents in the same order, so they are compared in place (by name otherwise)."""
+    if len(before) == len(now):
+        out = []
+        for (n0, a0, v0), (n, a, v) in zip(before, now, strict=True):
+            if n0 != n or a0 != a:
+                break
+            if v0 != v:
+                out.append((n, a, v0, v))
+        else:
+            return out
+    old = {(str(n), tuple(a)): v for n, a, v in before}
+    out = [
+        (n, a, old.get((str(n), tuple(a)), "(absent)"), v)
+        for n, a, v in now
+        if old.get((str(n), tuple(a)), _ABSENT) != v
+    ]
+    seen = {(str(n), tuple(a)) for n, a, _ in now}
+    out += [(n, a, v, "(absent)") for (n, a), v in old.items() if (n, a) not in seen]
     return out
 
 
@@ -121,26 +153,16 @@ def state_texts(state: Any, before: Any | None) -> tuple[str, str]:
     """A turn's state as the session page shows it: its true (or non-zero) fluents, and
     what changed since `before` (the state of the turn before in the same round; None:
     the round's first turn), as ``name(args): old \u2192 new``."""
-    now = _as_map(state)
-    true = [
-        (_name(n, a) if v is True else f"{_name(n, a)}={_value_text(v)}")
-        for (n, a), v in now.items()
-        if _is_true(v)
-    ]
-    if before is None:
-        return _join(true, STATE_TEXT) or "(none)", "(the round's first turn)"
-    old = _as_map(before)
-    changed = [
-        f"{_name(n, a)}: {_value_text(old.get((n, a)))} \u2192 {_value_text(v)}"
-        for (n, a), v in now.items()
-        if old.get((n, a)) != v
-    ]
-    changed += [
-        f"{_name(n, a)}: {_value_text(v)} \u2192 (absent)"
-        for (n, a), v in old.items()
-        if (n, a) not in now
-    ]
-    return _join(true, STATE_TEXT) or "(none)", _join(changed, STATE_TEXT) or "(no change)"
+    now = _triples(state)
+    try:
+        shown = [t for t in now if t[2] is True or (t[2] is not False and _is_true(t[2]))]
+        true = _join(shown, _show_true, STATE_TEXT) or "(none)"
+        if before is None:
+            return true, "(the round's first turn)"
+        changed = _changes(_triples(before), now)
+    except (TypeError, ValueError, IndexError):  # not (name, args, value) triples
+        return _fluents(now, STATE_TEXT), ""
+    return true, _join(changed, _show_change, STATE_TEXT) or "(no change)"
 
 
 def refusal_kind(cause: str) -> str | None:

@@ -405,8 +405,13 @@ def test_chromium_sees_jobs_end_and_the_hostile_name_as_text(tmp_path: Path) -> 
             assert c["href"] == "/job/" + quote(f"{c['planner']}@{c['instance']}", safe="")
         assert all(row["unscored"] == "" for row in view["overall"].values())
         # a job's page: its session's rounds, as the database has them
-        browser.find_element(By.CSS_SELECTOR, 'a[href="/job/mcts%40print_jobs_inst_1"]').click()
-        assert browser.title == "job mcts@print_jobs_inst_1"
+        browser.execute_script(
+            "document.querySelector('a[href=\"/job/mcts%40print_jobs_inst_1\"]').click()"
+        )
+        deadline = time.monotonic() + 20
+        while browser.title != "job mcts@print_jobs_inst_1":
+            assert time.monotonic() < deadline, f"the link led to {browser.title!r}"
+            time.sleep(0.1)
         with sqlite3.connect(db) as conn:
             rewards = [
                 r[0]
@@ -416,15 +421,18 @@ def test_chromium_sees_jobs_end_and_the_hostile_name_as_text(tmp_path: Path) -> 
                 )
             ]
         assert len(rewards) == 2
-        shown = [
-            td.text
-            for td in browser.find_elements(
-                By.CSS_SELECTOR, 'tbody[data-table="rounds"] [data-field="reward"]'
-            )
-        ]
+        # (after the stream's first events, which rebuild the rows: then one look)
+        deadline = time.monotonic() + 20
+        while not browser.execute_script("return document.body.dataset.eventsSeen"):
+            assert time.monotonic() < deadline, "the job's page got no event in 20 s"
+            time.sleep(0.1)
+        shown, state = browser.execute_script(
+            "return [[...document.querySelectorAll("
+            '\'tbody[data-table="rounds"] [data-field="reward"]\')].map(td => td.textContent),'
+            " document.querySelector('[data-page-field=\"job-state\"]').textContent];"
+        )
         assert shown == [fmt_number(r) for r in rewards]
-        state = browser.find_element(By.CSS_SELECTOR, '[data-page-field="job-state"]')
-        assert state.text == "finished"
+        assert state == "finished"
         browser.back()
         # live.js applied the events (no reload); the hostile name is text, not an element
         name = browser.find_element(By.CSS_SELECTOR, '[data-page-field="experiment"]').text

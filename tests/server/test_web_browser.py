@@ -111,9 +111,13 @@ def slow_session(port: int, client: str, stall: float) -> threading.Thread:
 
 
 def wait(driver: Any, predicate: Any, timeout: float = 20.0) -> Any:
+    from selenium.common.exceptions import StaleElementReferenceException
     from selenium.webdriver.support.ui import WebDriverWait
 
-    return WebDriverWait(driver, timeout, poll_frequency=0.1).until(predicate)
+    # (a row found a moment ago is gone when a stream's snapshot rebuilds the table)
+    return WebDriverWait(
+        driver, timeout, poll_frequency=0.1, ignored_exceptions=[StaleElementReferenceException]
+    ).until(predicate)
 
 
 def cell(driver: Any, key: str, name: str) -> str:
@@ -283,27 +287,34 @@ def test_state_column_refusals_and_chart_scale() -> None:
         wait(driver, lambda d: cell(d, "1", "status") == "finished")
 
         def refused_rows(d: Any) -> dict[str, str]:
-            rows = d.find_elements(By.CSS_SELECTOR, 'tbody[data-table="refused"] tr')
-            return {
-                r.find_element(By.CSS_SELECTOR, '[data-field="kind"]').text: r.find_element(
-                    By.CSS_SELECTOR, '[data-field="count"]'
-                ).text
-                for r in rows
-            }
+            return dict(  # (one look: the rows as they are at one moment)
+                d.execute_script(
+                    "return [...document.querySelectorAll('tbody[data-table=\"refused\"] tr')]"
+                    ".map(tr => [tr.querySelector('[data-field=\"kind\"]').textContent,"
+                    " tr.querySelector('[data-field=\"count\"]').textContent]);"
+                )
+            )
+
+        def refused_total(d: Any) -> str:
+            return str(
+                d.execute_script(
+                    "return document.querySelector('[data-page-field=\"refused\"]').textContent"
+                )
+            )
 
         wait(driver, lambda d: refused_rows(d) == {"unknown instance": "1"})
-        field = driver.find_element(By.CSS_SELECTOR, '[data-page-field="refused"]')
-        assert field.text == "1"
+        assert refused_total(driver) == "1"
         driver.get(f"http://127.0.0.1:{web2}/")
         wait(driver, lambda d: refused_rows(d) == {"cap of 1 per address reached": "1"})
-        assert driver.find_element(By.CSS_SELECTOR, '[data-page-field="refused"]').text == "1"
-        assert cell(driver, "1", "client") == "holder"  # (the session that held the cap)
+        assert refused_total(driver) == "1"
+        wait(driver, lambda d: cell(d, "1", "client") == "holder")  # (it held the cap)
 
         # the chart in the sessions' table: its scale is the rewards' highest and lowest
         driver.get(f"http://127.0.0.1:{web}/")
         wait(driver, lambda d: cell(d, "1", "status") == "finished")
-        img = driver.find_element(By.CSS_SELECTOR, 'tr[data-key="1"] img.spark')
-        wait(driver, lambda d: d.execute_script("return arguments[0].naturalWidth", img) > 0)
+        # (looked up each time: the stream's first event rebuilds the rows)
+        spark = "return document.querySelector('tr[data-key=\"1\"] img.spark').naturalWidth"
+        wait(driver, lambda d: (d.execute_script(spark) or 0) > 0)
         with urllib.request.urlopen(f"http://127.0.0.1:{web}/chart/session/1.svg") as reply:
             svg = reply.read().decode()
         hi, lo = max(recorded["rounds"]), min(recorded["rounds"])
@@ -316,13 +327,16 @@ def test_state_column_refusals_and_chart_scale() -> None:
         # the session's page: its last 20 turns (round 2), state and changes as sent
         driver.get(f"http://127.0.0.1:{web}/session/1")
         rows_css = 'tbody[data-table="turns"] tr'
+        # (after the stream's snapshot, which rebuilds the rows: then one look at them)
+        wait(driver, lambda d: d.execute_script("return document.body.dataset.eventsSeen"))
         wait(driver, lambda d: len(d.find_elements(By.CSS_SELECTOR, rows_css)) == 20)
         shown = {
-            r.get_attribute("data-key"): (
-                r.find_element(By.CSS_SELECTOR, '[data-field="state"]').text,
-                r.find_element(By.CSS_SELECTOR, '[data-field="changed"]').text,
+            key: (state, changed)
+            for key, state, changed in driver.execute_script(
+                f"return [...document.querySelectorAll('{rows_css}')].map(tr => [tr.dataset.key,"
+                " tr.querySelector('[data-field=\"state\"]').textContent,"
+                " tr.querySelector('[data-field=\"changed\"]').textContent]);"
             )
-            for r in driver.find_elements(By.CSS_SELECTOR, rows_css)
         }
         turns = recorded["turns"]
         checked = 0
