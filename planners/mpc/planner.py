@@ -276,7 +276,7 @@ class MPCPlanner(Planner):
         the last action sent, noop; then a legal action drawn by the solver."""
         sim = self.session.simulator  # type: ignore[union-attr]
         assert self._plan is not None
-        candidates = [self._plan.first()]
+        candidates = [self._plan.first(self.rng)]
         if best is not None:
             candidates.append(best)
         if self._last is not None:

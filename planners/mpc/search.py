@@ -133,9 +133,22 @@ class Plan:
             self.probs[i] = a * freq.reshape(h, g, k) + (1 - a) * p
         self.fitted = True
 
-    def first(self) -> Samples:
-        """The plan's most likely first action (a batch of one, one step)."""
+    def first(self, rng: np.random.Generator) -> Samples:
+        """The plan's most likely first action (a batch of one, one step). A
+        plan never refitted (no round of sampling fitted in the turns so far)
+        has no most likely flags and choices: they are drawn instead, so that
+        a planner out of time acts like a random baseline in them rather than
+        always sending their defaults; its numbers stay at their means."""
         space = self.space
+        if not self.fitted:
+            drawn = self.sample(2, rng).take(1)
+            drawn.numbers[:] = self.mean[None]
+            space.clip(drawn.numbers)
+            out = Samples(
+                drawn.numbers[:, :1], drawn.flags[:, :1], [c[:, :1] for c in drawn.choices]
+            )
+            space.limit_nondefault(out)
+            return out
         numbers = self.mean[None, :1].copy()
         space.clip(numbers)
         out = Samples(

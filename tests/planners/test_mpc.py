@@ -217,7 +217,7 @@ def test_refit_moves_flags_and_choices_to_the_winners(tmp_path: Path) -> None:
     returns = acts["show"][:, 0, 1] * 1.0 + acts["show"][:, 1, 2] + (acts["setting"] == 1)
     for _ in range(3):
         plan.refit(samples, returns.astype(float), "cem")
-    first = space.actions(plan.first(), 0)
+    first = space.actions(plan.first(np.random.default_rng(0)), 0)
     assert first["show"][0].tolist() == [[False, True, False], [False, False, True]]
     assert first["setting"].tolist() == [1]
 
@@ -291,3 +291,23 @@ def test_memory_budget_bounds_the_batch(tmp_path: Path) -> None:
     big = MPCPlanner(samples="64")
     big.start_session(SessionInfo("pick", model, sim, 1, 10.0, 0))
     assert big.cap == 64
+
+
+def test_out_of_time_it_draws_choices_instead_of_sending_noop(tmp_path: Path) -> None:
+    # no time for one round of sampling (RecSim #4 on a loaded machine): the
+    # plan was never refitted, so its flags and choices are drawn, not left
+    # at their defaults (a random baseline rather than noop)
+    model = model_of(tmp_path, CHOICE, "pick_inst")
+    sim = Simulator(model)
+    planner = MPCPlanner(seed="4", time_per_step="0")
+    planner.start_session(SessionInfo("pick", model, sim, 1, 1e6, 4))
+    planner.start_round(1)
+    state = sim.initial_state(1)
+    shown = 0
+    for turn in range(1, 4):
+        acts = planner.act(Observation(None, state, turn, 4 - turn, 1e6, 0.0, math.inf))
+        decoded = WireCodec(sim).actions_from(acts)
+        assert bool(sim.check_actions(state, decoded.arrays)[0])
+        shown += int(decoded.arrays.get("show", np.zeros(1))[0].sum())
+    assert planner.stats["refits"] == 0
+    assert shown > 0
