@@ -12,8 +12,12 @@ Main process <-> worker messages (one SOCK_SEQPACKET record each):
 
     main -> worker   b"S" + session number (8 bytes, little endian), with the
                      connection's descriptor attached
+    main -> worker   b"X" + session number      close that connection if it has no
+                                                session yet (the cap is reached and
+                                                it is the oldest idle one)
     worker -> main   b"R"                       ready (instances loaded)
                      b"E" + session number      that session ended
+                     b"K" + session number      (after an X) it has its session: kept
 
 What the workers share: the listening port's rddlsim log file (every
 document is one O_APPEND write, so documents never interleave), the SQLite
@@ -63,6 +67,7 @@ from .limits import (
     closed_already,
     peer_host,
 )
+from .listener import make_room
 from .registry import Registry
 
 log = logging.getLogger(__name__)
@@ -71,6 +76,8 @@ _NUM = struct.Struct("<q")
 _READY = b"R"
 _START = b"S"
 _END = b"E"
+_CLOSE_IDLE = b"X"  # main -> worker: close that session's connection if it has no session
+_KEPT = b"K"  # worker -> main: it has its session (not closed)
 # a worker that has not reported ready after this long is taken for dead
 READY_TIMEOUT = 300.0
 # ... and a restarted one, after this long (the first start loaded the instances)
@@ -336,6 +343,8 @@ class WorkerPool:
                 w.open.discard(sid)
                 self.table.remove(sid)
                 self._publish()
+            elif kind == _KEPT and len(msg) == 1 + _NUM.size:
+                self.table.in_session(_NUM.unpack_from(msg, 1)[0])
             else:
                 log.error("%r sent an unknown message %r", w, msg[:20])
 
@@ -408,6 +417,9 @@ class WorkerPool:
         try:
             host = peer_host(sock)
             refused = self.table.refusal(host)
+            if refused is not None and self.table.full():
+                if make_room(self.table, self.notices, self._close_idle, host):
+                    refused = self.table.refusal(host)
             if refused is not None:
                 self.notices.note(*refused)
                 return
@@ -452,6 +464,19 @@ class WorkerPool:
                 )
         finally:
             sock.close()
+
+    def _close_idle(self, sid: int) -> bool | None:
+        """Ask the worker that plays `sid` to close its connection if it has
+        no session yet (it answers with the session's end, or `_KEPT`): None;
+        False when no live worker can be asked (the next is tried)."""
+        for w in self.workers:
+            if sid in w.open and w.ctrl is not None:
+                try:
+                    w.ctrl.send(_CLOSE_IDLE + _NUM.pack(sid))
+                    return None
+                except OSError:
+                    return False
+        return False
 
     async def _send(self, w: _Worker, sid: int, fd: int) -> bool:
         """Pass the connection to `w`; False when it cannot take it now: its
@@ -576,15 +601,33 @@ async def _worker(
         max(1, config.max_buffered // max(1, spec.get("workers", 1)))
     )
     ctrl.setblocking(False)
+    # each session (once it plays), to close an idle one when the main
+    # process asks (`_CLOSE_IDLE`)
+    playing: dict[int, Any] = {}
 
     async def play(sid: int, sock: socket.socket) -> None:
         try:
             stream = trio.SocketStream(trio.socket.from_stdlib_socket(sock))
-            await play_connection(svc, stream, sid)
+            await play_connection(svc, stream, sid, started=lambda s: playing.__setitem__(sid, s))
         except Exception:  # a fault of ours: this session only, the others go on
             log.exception("session %d ended by an internal error", sid)
         finally:
+            playing.pop(sid, None)
             _tell(ctrl, _END + _NUM.pack(sid))
+
+    def close_idle(sid: int) -> None:
+        session = playing.get(sid)
+        if session is None:
+            return  # ended already (its end is on the way), or not started
+        if session.requested:
+            _tell(ctrl, _KEPT + _NUM.pack(sid))
+        else:
+            # (the session reads a duplicate of the descriptor: shut the
+            # connection itself down, and its wait for a request ends)
+            try:
+                session.stream.socket.shutdown(socket.SHUT_RDWR)
+            except OSError:
+                pass
 
     async def take_sessions(sessions: trio.Nursery) -> None:
         _tell(ctrl, _READY)  # (a main process gone already: the loop below ends at once)
@@ -602,6 +645,9 @@ async def _worker(
                     "the main process is gone: no new sessions; exiting when the open ones end"
                 )
                 return
+            if msg[:1] == _CLOSE_IDLE and len(msg) == 1 + _NUM.size and not socks:
+                close_idle(_NUM.unpack_from(msg, 1)[0])
+                continue
             if msg[:1] != _START or len(msg) != 1 + _NUM.size or len(socks) != 1:
                 for s in socks:
                     s.close()

@@ -1,18 +1,20 @@
 """When the connection cap (from the open-file limit) is reached by idle
 connections, a new client gets its session at once: the oldest connection
-that has had no session for a second is closed to make room (a server of
-one process, as rddl-dispatch's planner port; real sockets on 127.0.0.1)."""
+that has had no session for a second is closed to make room (one process,
+and worker processes; real sockets on 127.0.0.1)."""
 
 from __future__ import annotations
 
 import logging
+from functools import partial
 
 import pytest
 import trio
 from ippc.server.config import ServerConfig
 from ippc.server.limits import ConnectionTable
+from ippc.server.workers import serve_with_workers, supported
 
-from .harness import RawClient, noop_session, root_of, running_server, session_request
+from .harness import RDDL, RawClient, noop_session, root_of, running_server, session_request
 from .test_limits import closed_within, connect_from
 
 
@@ -67,3 +69,17 @@ async def test_one_process_closes_the_oldest_idle_connection_for_a_new_one(
     config = ServerConfig(port=0, rounds=1, max_connections=3, max_connections_per_address=3)
     async with running_server(config) as (port, _):
         await _idle_then_good(port, caplog)
+
+
+@pytest.mark.trio
+@pytest.mark.alone
+@pytest.mark.skipif(supported() is not None, reason=str(supported()))
+async def test_workers_close_the_oldest_idle_connection_for_a_new_one(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    caplog.set_level(logging.INFO)
+    config = ServerConfig(port=0, rounds=1, max_connections=3, max_connections_per_address=3)
+    async with trio.open_nursery() as nursery:
+        port = await nursery.start(partial(serve_with_workers, config, [str(RDDL)], 2))
+        await _idle_then_good(port, caplog)
+        nursery.cancel_scope.cancel()
