@@ -33,6 +33,9 @@ log = logging.getLogger(__name__)
 
 ITERATIONS = 3  # rounds of refitting a turn should have time for
 MIN_SAMPLES = 16  # the fewest samples a round draws (unless memory allows fewer)
+# the fewest steps planned (while the round lasts): a reward that reads the
+# next state (RecSim's) shows an action's effect only a step later
+MIN_HORIZON = 2
 KEPT = 4  # best sequences of a turn offered again in the next one
 # bytes a state or an action takes inside a step, per byte it takes at rest
 # (the step's temporaries)
@@ -164,7 +167,7 @@ class MPCPlanner(Planner):
             if self.n > MIN_SAMPLES:
                 self.n = max(MIN_SAMPLES, self.n // 2)
             else:
-                self.h_limit = max(1, int(self.h_limit * 0.7))
+                self.h_limit = max(MIN_HORIZON, int(self.h_limit * 0.7))
         elif rounds >= 2 * ITERATIONS:
             if self.h_limit < self.horizon:
                 self.h_limit = min(self.horizon, self.h_limit + max(1, self.h_limit // 2))
@@ -196,8 +199,8 @@ class MPCPlanner(Planner):
         return chosen
 
     def _size(self, steps_left: int, budget: float) -> tuple[int, int]:
-        """(samples, horizon) for this turn's time and the memory budget;
-        (0, h) when not even one small batch fits."""
+        """(samples, horizon) for this turn's time and the memory budget (at
+        least `MIN_HORIZON` steps while the round lasts)."""
         h = max(1, min(self.horizon, steps_left))
         per_call = budget / (ITERATIONS * h)
         n = int((per_call - self.fixed) / self.each) if per_call > self.fixed else 0
@@ -207,9 +210,7 @@ class MPCPlanner(Planner):
         # too little time for a full horizon: shorten it rather than sample fewer
         n = min(MIN_SAMPLES, self.cap)
         h = int(budget / (ITERATIONS * (self.fixed + self.each * n)))
-        if h < 1:
-            return (0, 1)
-        return n, min(h, self.horizon, steps_left)
+        return n, max(1, min(max(h, MIN_HORIZON), self.horizon, steps_left))
 
     def _search(self, state: State, steps_left: int, stop: float) -> Samples | None:
         """Refine the plan until `stop` (or `iterations` times); the best

@@ -159,11 +159,14 @@ class Plan:
 
 
 def weights(returns: Array, method: str) -> Array | None:
-    """The samples' weights (summing to 1), or None when none is finite."""
+    """The samples' weights (summing to 1), or None when none is finite or
+    every finite return is the same."""
     finite = np.isfinite(returns)
     if not finite.any():
         return None
     r = np.where(finite, returns, -np.inf)
+    if np.ptp(r[finite]) == 0:
+        return None  # all alike: nothing to learn (and no tie may favour the first sample)
     if method == "cem":
         k = max(1, math.ceil(ELITE * int(finite.sum())))
         top = np.argsort(-r, kind="stable")[:k]
