@@ -9,6 +9,11 @@ from pathlib import Path
 
 import pytest
 
+# The planners' default start-up allowance (planners/budget.py) in the tests: their
+# cold C compiles share two cores with everything else, so a session waits for its
+# compile instead of falling back; the tests of the fallbacks set `startup` themselves.
+os.environ.setdefault("IPPC_STARTUP", "300")
+
 REPO = Path(__file__).resolve().parents[1]
 #: Every file the tests read lives here (see tests/data/README.md).
 DATA = REPO / "tests" / "data"

@@ -144,12 +144,13 @@ TABLE: tuple[Option, ...] = (
     Option(
         "startup",
         "float",
-        10.0,
+        None,
         "seconds the session's start may take before the first turn's search (relevance "
         "analysis, C compile, legal actions in C, IDS); what does not fit is skipped with a "
         "warning (docs/planners-budgets.md)",
         minimum=0.0,
         public=True,
+        default_text="10, or $IPPC_STARTUP where it is set",
     ),
     Option(
         "memory",
