@@ -77,12 +77,15 @@ def test_a_child_over_its_memory_budget_is_killed(plugins: dict[str, str]) -> No
     assert BUDGET_MB < out.peak_mb < 4096
 
 
-def test_a_cancel_stops_the_child() -> None:
+def test_a_cancel_stops_the_child(plugins: dict[str, str]) -> None:
     import threading
 
     cancel = threading.Event()
     cancel.set()
-    out = run_guarded("time:sleep", 5, seconds=60, memory_mb=None, cancel=cancel)
+    # a child that would run on (time.sleep would fail at once: it takes no `send`)
+    out = run_guarded(
+        "ippc_runaway_planners:wait_forever", None, seconds=60, memory_mb=None, cancel=cancel
+    )
     assert out.status == "interrupted"
 
 
