@@ -108,7 +108,10 @@ def test_each_goal_gets_one_outcome(tmp_path: Path, caplog: pytest.LogCaptureFix
     assert reached["turn"] == 24 and reached["sessions"] == [] and reached["turns"] == 0
     assert removed["by"] == interrupted["version"] and removed["turn"] is None
     assert seen == report.goals[:3]
-    assert removed["sessions"] == []  # the session still playing when it was replaced
+    # the session playing when it was replaced is not counted; one that ended first (the
+    # replacement lands after turn 30, a session is 12 fast noop turns) is: a fresh-clone
+    # CI run saw it finish first once
+    assert removed["sessions"] in ([], ["finished"])
     with ResultStore(db) as store:
         assert store.goal_outcomes("courier_one") == report.goals
     warnings = [r.getMessage() for r in caplog.records if r.levelno == logging.WARNING]
