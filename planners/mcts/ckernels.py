@@ -8,8 +8,8 @@ whole piece of work, and tree.c, the search itself (`ctree`).
 * `probe`: every candidate action of a state under two fixed draw vectors,
   recording the probability at every Bernoulli and Discrete site and the
   standard deviation at every Normal site: which actions are deterministic,
-  which are equivalent (the same probabilities at every draw site reached,
-  the same successors, rewards and ends under both probes);
+  which deterministic actions are equivalent (the same successor, reward and
+  end; stochastic actions are never merged);
 * `ids_values`, `ids_values_enum`, `ids_values_cb`: PROST's IDS on the most-likely
   determinisation (every uniform 0.5, every normal 0) to a depth, with a
   cache of (depth, state) values kept across calls;

@@ -25,10 +25,10 @@ One trial at a time, as in Keller & Helmert 2013 and PROST:
   with its probability (`u < p`) and multiplies each normal draw by its
   standard deviation, and the probe records these (`Kernels.probe`). An action all of whose
   probabilities are 0 or 1 (and standard deviations 0) is *deterministic*:
-  its one successor is known. Two actions with the same records and the
-  same successors and rewards under both probes are *equivalent* (the same
-  probabilities at every draw the step makes: the same successor
-  distribution and reward): only the first (noop first) is kept. With one
+  its one successor is known. Two deterministic actions with the same
+  successor and reward are *equivalent*: only the first (noop first) is
+  kept. Stochastic actions are never merged: two of them can agree on both
+  probes by chance (tests/data/mcts_sound/probe.rddl). With one
   step left, an action's value is its reward, exact when both probes give
   the same reward (the last step is evaluated, not sampled, and solved).
   Otherwise each kept action gets a first estimate: its reward plus the

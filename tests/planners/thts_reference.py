@@ -399,9 +399,10 @@ class THTS:
                 break
             act = self._tuple(row)
             det, sig, s1, r1, d1, same_r = self._probe(state, act)
-            if sig in seen:
-                continue
-            seen.add(sig)
+            if det:  # only deterministic actions merge (see ippc_probe)
+                if sig in seen:
+                    continue
+                seen.add(sig)
             kept.append((row, act, det, s1, r1, d1, same_r))
         h: list[float] = []
         asolved: list[bool] = []

@@ -47,7 +47,10 @@ static int deterministic(const double *L) {
 /* Probe `n` actions (rows of ACTS) in S under two draw vectors. Out per action:
    N1 (n x NS) and R1, D1 the first probe's successor, reward, done; DET whether
    no draw decided anything; SAMER whether both probes gave the same reward;
-   KEEP 1 for the first of each class of equivalent actions, else 0. */
+   KEEP 1 for the first of each class of equivalent actions, else 0. Only
+   deterministic actions are merged: two stochastic actions that agree on both
+   probes may agree by chance (the probes' draws are fixed for the session), so
+   each stochastic action is kept (tests/data/mcts_sound/probe.rddl). */
 int ippc_probe(const double *S, const double *ACTS, int n,
                const double *U1, const double *Z1, const double *U2, const double *Z2,
                double *N1, double *R1, int *D1, int *DET, int *SAMER, int *KEEP) {
@@ -79,8 +82,8 @@ int ippc_probe(const double *S, const double *ACTS, int n,
         uint64_t h = hash_state(g, W, 1469598103934665603ULL);
         hs[a] = h;
         int dup = 0;
-        for (int b = 0; b < a && !dup; b++)
-            if (KEEP[b] && hs[b] == h && same(sig + (size_t)b * W, g, W)) dup = 1;
+        for (int b = 0; b < a && !dup && det; b++)
+            if (KEEP[b] && DET[b] && hs[b] == h && same(sig + (size_t)b * W, g, W)) dup = 1;
         KEEP[a] = !dup;
         kept += !dup;
     }
