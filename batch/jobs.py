@@ -41,6 +41,7 @@ from typing import Any
 
 import trio
 
+from ..rddl.loader import read_text
 from ..server.store import ResultStore, encode_fluents
 from .experiment import Experiment, PlannerSpec, fill_command
 from .instances import ResolvedInstance
@@ -137,7 +138,7 @@ def build_jobs(
         )
         for f in files:
             if f not in texts:
-                texts[f] = Path(f).read_text(encoding="utf-8")
+                texts[f] = read_text(Path(f))
         for spec in experiment.planners:
             jobs.append(
                 Job(

@@ -63,7 +63,9 @@ def rddl_files(paths: Iterable[str | os.PathLike[str]]) -> list[Path]:
     return unique
 
 
-def _read(path: Path) -> str:
+def read_text(path: Path) -> str:
+    """A RDDL file's text: UTF-8, else Latin-1 (some IPPC files hold a cp1252
+    dash, byte 0x96, in a comment)."""
     data = path.read_bytes()
     try:
         return data.decode("utf-8")
@@ -244,7 +246,7 @@ def _parse_into(
     files: list[Path], texts: dict[str, str], index: _Index, results: list[CheckResult]
 ) -> None:
     for f in files:
-        text = _read(f)
+        text = read_text(f)
         texts[str(f)] = text
         try:
             index.add(parse(text, str(f)))

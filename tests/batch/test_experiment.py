@@ -228,3 +228,12 @@ def test_the_bad_file_of_the_docs_gets_the_lines_the_docs_show(
     for line, pattern in zip(got, expected, strict=True):
         # "(...)" on the page stands for a list in brackets
         assert re.fullmatch(re.escape(pattern).replace(r"\(\.\.\.\)", r"\(.*\)"), line), line
+
+
+def test_jobs_carry_files_that_are_not_utf8() -> None:
+    # Tamarisk 2014's domain file holds a cp1252 dash (byte 0x96) in a comment;
+    # the jobs' texts are read as the RDDL loader reads files (Latin-1 there)
+    exp = parse_experiment('instances = ["Tamarisk_MDP_ippc2014:1"]\n', Path("e.toml"))
+    jobs = build_jobs(exp, resolve_instances(exp))
+    assert [j.planner.label for j in jobs] == ["noop", "random"]
+    assert all(any("351\x9663" in t for t in job.texts) for job in jobs)
