@@ -10,6 +10,7 @@ from typing import Any
 
 import click
 
+from ..client.options import budget_options
 from ..server.store import StoreError
 from ..web import WebOptions, web_options, web_url
 from .experiment import ExperimentError
@@ -104,22 +105,11 @@ def _host_port(value: str | None, what: str) -> tuple[str, int] | None:
     default=None,
     help="Folder for external planners' output (default: DB.logs beside the database).",
 )
-@click.option(
-    "--memory-budget",
-    "memory_mb",
-    type=click.FloatRange(min=1),
-    default=None,
-    metavar="MB",
-    help="Resident memory a job's process may hold before it is killed and the job "
+@budget_options(
+    memory_help="Resident memory a job's process may hold before it is killed and the job "
     "failed (default: 80% of the memory available at start, shared by the jobs at once).",
-)
-@click.option(
-    "--grace",
-    type=click.FloatRange(min=0),
-    default=60.0,
-    show_default=True,
-    metavar="SECONDS",
-    help="How long a session may run past its budget before its process is stopped and "
+    grace_default=60.0,
+    grace_help="How long a session may run past its budget before its process is stopped and "
     "the job recorded as timed out.",
 )
 @click.option("-v", "--verbose", is_flag=True, help="Log every session.")

@@ -12,6 +12,7 @@ import trio
 
 from ..planners.base import ExternalPlanner, PlannerError, find_planner, make_planner
 from .guard import default_memory_budget
+from .options import budget_options
 from .session import ClientConfig, ClientError, SessionResult, run_session, run_session_guarded
 
 
@@ -89,22 +90,11 @@ def parse_planner_options(pairs: tuple[str, ...]) -> dict[str, str]:
     default=None,
     help="PROST's search binary (else $PROST_BIN).",
 )
-@click.option(
-    "--memory-budget",
-    "memory_mb",
-    type=click.FloatRange(min=1),
-    default=None,
-    metavar="MB",
-    help="Resident memory the planner's process may hold before it is killed "
+@budget_options(
+    memory_help="Resident memory the planner's process may hold before it is killed "
     "(default: 80% of the memory available at start).",
-)
-@click.option(
-    "--grace",
-    type=click.FloatRange(min=0),
-    default=30.0,
-    show_default=True,
-    metavar="SECONDS",
-    help="How long the planner may play past the session's budget before its process is stopped.",
+    grace_default=30.0,
+    grace_help="How long the planner may play past the session's budget before its process is stopped.",
 )
 @click.option(
     "--in-process",
