@@ -11,6 +11,7 @@ import trio
 
 from ..rddl import RDDLError
 from ..server.limits import parse_networks
+from ..server.options import listener_options
 from .jsonl import DEFAULT_HOST, SocketLimits
 from .knowledge_base import KnowledgeBase
 from .service import serve_kb
@@ -52,25 +53,12 @@ async def run(kb: KnowledgeBase, host: str, port: int, limits: SocketLimits | No
     show_default=True,
     help="With --pddl: what the world's own fluents do (see docs/knowledge-base.md).",
 )
-@click.option(
-    "--max-connections",
-    type=click.IntRange(min=1),
-    default=SocketLimits.max_connections,
-    show_default=True,
-    help="Open connections at most; more are refused at once.",
-)
-@click.option(
-    "--allow",
-    multiple=True,
-    metavar="CIDR",
-    help="Accept connections only from this network (repeatable); default: any address.",
-)
-@click.option(
-    "--accept-rate",
-    type=click.FloatRange(min=0),
-    default=SocketLimits.accept_rate,
-    show_default=True,
-    help="New connections a second accepted at most; 0 = no limit.",
+@listener_options(
+    max_connections=SocketLimits.max_connections,
+    max_connections_help="Open connections at most; more are refused at once.",
+    accept_rate=SocketLimits.accept_rate,
+    accept_rate_help="New connections a second accepted at most; 0 = no limit.",
+    per_address=False,
 )
 @click.option(
     "--max-buffered",

@@ -4,9 +4,8 @@ from __future__ import annotations
 
 import logging
 import sys
-from collections.abc import Callable
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import Any
 
 import click
 import trio
@@ -15,7 +14,6 @@ from ..rddl import RDDLError
 from ..web import WebOptions, serve_web, web_options, web_url
 from .app import serve
 from .config import (
-    DEFAULT_ACCEPT_RATE,
     DEFAULT_BUSY_POLL_US,
     DEFAULT_MAX_BUFFERED,
     DEFAULT_MESSAGE_TIMEOUT,
@@ -25,71 +23,9 @@ from .config import (
     DEFAULT_TIMEOUT,
     ServerConfig,
 )
-from .limits import parse_networks
+from .options import check_connection_options, connection_options
 from .registry import Registry
 from .workers import WorkerError, default_workers, serve_with_workers, supported
-
-# the listener's limits (docs/server-safety.md): rddl-server's and rddl-dispatch's
-_CONNECTION_OPTIONS = [
-    click.option(
-        "--max-connections",
-        type=int,
-        default=None,
-        metavar="N",
-        help="Open connections at most; more are refused at once [default: from the open-file limit].",
-    ),
-    click.option(
-        "--max-connections-per-address",
-        type=int,
-        default=None,
-        metavar="N",
-        help="Open connections from one address at most [default: half of --max-connections].",
-    ),
-    click.option(
-        "--allow",
-        multiple=True,
-        metavar="CIDR",
-        help="Accept connections only from this network (repeatable); default: any address.",
-    ),
-    click.option(
-        "--accept-rate",
-        type=float,
-        default=DEFAULT_ACCEPT_RATE,
-        show_default=True,
-        help="New connections a second the listener accepts at most (bursts of half that); more wait in the backlog; 0 = no limit.",
-    ),
-]
-
-F = TypeVar("F", bound=Callable[..., Any])
-
-
-def connection_options(f: F) -> F:
-    """The listener's options: --max-connections, --max-connections-per-address,
-    --allow and --accept-rate (check them with `check_connection_options`)."""
-    for option in reversed(_CONNECTION_OPTIONS):
-        f = option(f)
-    return f
-
-
-def check_connection_options(
-    max_connections: int | None,
-    max_connections_per_address: int | None,
-    allow: tuple[str, ...],
-    accept_rate: float,
-) -> None:
-    """click.BadParameter for a bad value of `connection_options`."""
-    for name, n in (
-        ("--max-connections", max_connections),
-        ("--max-connections-per-address", max_connections_per_address),
-    ):
-        if n is not None and n < 1:
-            raise click.BadParameter("must be at least 1", param_hint=name)
-    if accept_rate < 0:
-        raise click.BadParameter("must be 0 (no limit) or positive", param_hint="--accept-rate")
-    try:
-        parse_networks(allow)
-    except ValueError as err:
-        raise click.BadParameter(str(err), param_hint="--allow") from None
 
 
 @click.command(context_settings={"help_option_names": ["-h", "--help"]})
