@@ -10,7 +10,7 @@ from __future__ import annotations
 import logging
 import threading
 from collections.abc import Callable, Iterable, Mapping
-from typing import Any
+from typing import Any, Protocol
 
 from ..rddl.model import STATE
 from .goal import Goal, GoalFact, parse_goal_fact
@@ -24,9 +24,11 @@ GoalSubscriber = Callable[[Goal | None, str], None]
 GoalFacts = GoalFact | str | Mapping[str, Any] | Iterable[GoalFact | str | Mapping[str, Any]]
 
 
-class RuntimeGoals:
-    """The run-time goal methods of `KnowledgeBase` (which provides the
-    attributes and methods declared here)."""
+class GoalHost(Protocol):
+    """What `RuntimeGoals` needs of the class it is mixed into (`KnowledgeBase`):
+    its lock, store, invariants and goal state, its domain goal, and its
+    subscription, journal and change hooks. `RuntimeGoals` subclasses it, so mypy
+    checks that a host provides every one with these types."""
 
     _lock: threading.RLock
     _store: Store
@@ -36,16 +38,25 @@ class RuntimeGoals:
     _goal_subscribers: list[GoalSubscriber]
 
     def goal(self) -> Goal | None:
-        raise NotImplementedError
+        """The goal now (None: no goal)."""
+        ...
 
     def _listen(self, listeners: list[Any], callback: Any) -> Callable[[], None]:
-        raise NotImplementedError
+        """Add `callback` to `listeners`; the function that removes it."""
+        ...
 
     def _log(self, entry: dict[str, Any]) -> None:
-        raise NotImplementedError
+        """Journal `entry`."""
+        ...
 
     def _changed(self) -> None:
-        raise NotImplementedError
+        """Under the lock: the knowledge base's state or goal changed."""
+        ...
+
+
+class RuntimeGoals(GoalHost):
+    """The run-time goal methods of `KnowledgeBase`, which provides what
+    `GoalHost` declares."""
 
     def set_goal(self, facts: GoalFacts, source: str = "api") -> Goal | None:
         """Make the goal the conjunction of `facts` (a `GoalFact`, a text
