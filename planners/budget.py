@@ -13,8 +13,9 @@ and skips what does not fit with a WARNING naming what it skipped and why
 thread with a deadline (`Startup.run`): when the deadline passes, the
 caller goes on without the result and the worker is asked to stop (an
 exception raised in it at its next Python instruction; work inside one long
-C call, such as waiting for a compiler, finishes first and is then
-dropped).
+C call finishes first and is then dropped). Work that need not hold up the
+session runs in the background instead (`Background`: mcts's C compile,
+waited for a while, then taken up at the first turn after it has ended).
 
 Memory: `memory_budget` is the bytes a planner's working memory may take
 (option `memory`, in MiB; default `DEFAULT_MEMORY_FRACTION` of the memory
@@ -38,7 +39,7 @@ import time
 import tracemalloc
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import TypeVar
+from typing import Generic, TypeVar
 
 import numpy as np
 
@@ -47,6 +48,7 @@ from ..rddl.simulator import Simulator, State
 log = logging.getLogger(__name__)
 
 T = TypeVar("T")
+
 
 def _default_startup() -> float:
     text = os.environ.get("IPPC_STARTUP", "").strip()
@@ -312,6 +314,54 @@ class Startup:
         if left <= 0.0:
             raise StartupOverrun(f"no start-up time left for {what}")
         return run_within(fn, left, what)
+
+
+class Background(Generic[T]):
+    """`fn()` started now in a daemon thread of its own and never abandoned:
+    the caller waits for it a while (`wait`), asks whether it has ended
+    (`done`) and takes its result when it has (`result`). For work that
+    need not hold up the session, such as a C compiler that runs while a
+    cheaper engine plays."""
+
+    def __init__(
+        self, what: str, fn: Callable[[], T], clock: Callable[[], float] = time.monotonic
+    ) -> None:
+        self.what = what
+        self.clock = clock
+        self.started = clock()
+        self.ended: float | None = None
+        self._box: dict[str, object] = {}
+        self._worker = threading.Thread(target=self._work, args=(fn,), name=what, daemon=True)
+        self._worker.start()
+
+    def _work(self, fn: Callable[[], T]) -> None:
+        try:
+            self._box["value"] = fn()
+        except BaseException as err:  # noqa: BLE001 - handed to the caller by `result`
+            self._box["error"] = err
+        finally:
+            self.ended = self.clock()
+
+    def done(self) -> bool:
+        """Whether `fn` has ended (returned or raised)."""
+        return not self._worker.is_alive()
+
+    def wait(self, seconds: float) -> bool:
+        """Wait up to `seconds` for `fn` to end; whether it has."""
+        self._worker.join(max(0.0, seconds))
+        return self.done()
+
+    def seconds(self) -> float:
+        """Seconds `fn` took, or has taken so far."""
+        return (self.clock() if self.ended is None else self.ended) - self.started
+
+    def result(self) -> T:
+        """`fn()`'s value, once it has ended (waits for it); an exception of
+        `fn` is raised here."""
+        self._worker.join()
+        if "error" in self._box:
+            raise self._box["error"]  # type: ignore[misc]
+        return self._box["value"]  # type: ignore[return-value]
 
 
 class OneAtATime:

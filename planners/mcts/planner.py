@@ -12,6 +12,7 @@ from __future__ import annotations
 import dataclasses
 import gc
 import logging
+import threading
 import time
 from typing import Any, ClassVar
 
@@ -23,7 +24,7 @@ from ...rddl.sim.scalar import ScalarStep, ScalarUnsupported
 from ...rddl.simulator import SimulationError, Simulator, State
 from ...rddl.wire import WireCodec, WireError
 from ..base import Observation, Planner, PlannerError, SessionInfo, WireFluent
-from ..budget import guarded_turn, noop_legal
+from ..budget import Background, guarded_turn, noop_legal
 from .actions import ActionChooser, ActionLibrary, _row_keys
 from .ckernels import Kernels
 from .ctree import attach
@@ -32,7 +33,7 @@ from .heuristic import IDS, RewardLocks, training_states
 from .options import OPTIONS, Settings, read_settings
 from .relevance import removable_inert, useless_actions
 from .rollouts import Expander, _stack_states
-from .startup import ENUM_SECONDS, IDS_SECONDS, Budgets
+from .startup import ENUM_SECONDS, IDS_SECONDS, Budgets, warm_up
 from .stats import SearchStats
 from .thts import THTS
 from .tree import _Node, _Outcome, _Trial, backup, best, refresh, select
@@ -80,6 +81,9 @@ class MCTSPlanner(Planner):
         """The search this session runs: thts, or wave (asked for, or the fallback)."""
         self.compiled = False
         """Whether the thts engine runs its step in C this session (option compiled)."""
+        self._pending: Background[tuple[THTS, ActionChooser, Settings] | None] | None = None
+        """The compiled engine being built while the wave engine plays (a late C build)."""
+        self._ended = threading.Event()  # set at the session's end: no set-up after it
 
     @property
     def library(self) -> ActionLibrary | None:
@@ -116,14 +120,15 @@ class MCTSPlanner(Planner):
                 )
             except ScalarUnsupported as err:
                 log.info("mcts: %s: no scalar step (%s); the wave search", session.instance, err)
+        self._ended.set()  # (an earlier session's set-up, if any, is not wanted)
+        self._pending, self._ended = None, threading.Event()
         if scalar is not None:
             self.settings = budgets.size_thts(sim, self._asked)
-            self.settings = budgets.compile(scalar, self.settings)
             self._thts = self._start_thts(session, scalar, seed)
         if self._thts is None:
             self.settings = self._chooser.settings = budgets.size_wave(sim, self._asked)
             if budgets.fits("warming up the batched step", 1.0, "the first turn compiles it"):
-                self._warm_up(sim, self.settings.batch)
+                warm_up(sim, self.settings.batch)
             ids, locks = budgets.heuristic(self.settings, lambda: self._heuristic(session))
             self._expander = Expander(sim, self._chooser, self.settings, self.rng, ids, locks)
         else:
@@ -140,15 +145,16 @@ class MCTSPlanner(Planner):
     def _start_thts(
         self, session: SessionInfo, scalar: ScalarStep, seed: int | None
     ) -> THTS | None:
-        """The `thts` engine of this session: the C step with the search, and
-        IDS's depth (fixed, or learned on random-walk states with their own
-        generator, so the search's draws stay those of the seed). None where
-        it cannot run (no C step, `compiled=no`, `reward_locks`): the session
-        runs the wave engine then (docs/architecture.md, "mcts: one search
-        engine")."""
+        """The one place that decides the engine of a session with a scalar
+        step: the `thts` engine (the C step with the search; None: the wave
+        engine) where its build ends within the wait (`Budgets.compile_wait`);
+        else the wave engine, for the session where there is no C step (no
+        compiler, a failed build, `compiled=no`, `reward_locks`), and until the
+        first turn after the build has ended where it is only late (`_switch`;
+        docs/architecture.md, "mcts: one search engine")."""
         st = self.settings
-        sim = session.simulator
-        assert self._chooser is not None
+        assert self.budgets is not None
+        budgets = self.budgets
         if st.reward_locks:
             log.info(
                 "mcts: %s: reward_locks: the wave engine (thts has no reward-lock check)",
@@ -158,13 +164,88 @@ class MCTSPlanner(Planner):
         if st.compiled == "no":
             log.info("mcts: %s: compiled=no: the wave engine", session.instance)
             return None
+        build = budgets.start_compile(scalar)
+        if not build.wait(budgets.compile_wait(st)):
+            what, why = "waiting for the C step's build", f"not built after {build.seconds():.2f} s"
+            if st.compiled == "yes":
+                raise PlannerError(
+                    f"mcts: compiled=yes, but the C step is not built within the start-up "
+                    f"allowance of {budgets.startup.seconds:g} s (option startup)"
+                )
+            if st.iterations is not None:
+                budgets.startup.skip(what, f"{why}; the wave engine for the session (iterations)")
+                return None
+            budgets.startup.skip(
+                what, f"{why}; the wave engine until it is, then the compiled engine (thts)"
+            )
+            ended = self._ended
+
+            def later() -> tuple[THTS, ActionChooser, Settings] | None:
+                kernels = build.result()
+                if ended.is_set():
+                    return None  # the session is over: no set-up
+                fresh = budgets.afresh()  # (its allowance starts now)
+                return *self._setup_thts(session, scalar, seed, st, kernels, fresh), st
+
+            self._pending = Background("mcts: the compiled engine's set-up", later)
+            return None
         try:
-            cstep = Kernels(scalar)
+            kernels = build.result()
         except CUnavailable as err:
             if st.compiled == "yes":
                 raise PlannerError(f"mcts: compiled=yes, but no C step: {err}") from None
             log.warning("mcts: %s: no C step (%s); the wave engine", session.instance, err)
             return None
+        search, self._chooser = self._setup_thts(session, scalar, seed, st, kernels, budgets)
+        self.compiled = True
+        return search
+
+    def _switch(self, turn: int) -> None:
+        """From the first turn after a late C build and the compiled engine's
+        set-up have ended (and no late wave turn still runs): the compiled
+        engine. A build or set-up that failed leaves the wave engine."""
+        pending = self._pending
+        assert pending is not None and self.budgets is not None and self.session is not None
+        if not pending.done() or self.budgets.turns.busy():
+            return
+        self._pending = None
+        instance = self.session.instance
+        try:
+            built = pending.result()
+        except Exception as err:  # noqa: BLE001 - CUnavailable, or a set-up that failed
+            log.warning(
+                "mcts: %s: no compiled engine (%s: %s); the wave engine for the session",
+                instance,
+                type(err).__name__,
+                err,
+            )
+            return
+        assert built is not None
+        self._thts, self._chooser, self.settings = built
+        self.engine, self.compiled = "thts", True
+        self._expander, self._table, self._root, self._last = None, {}, None, None
+        log.info(
+            "mcts: %s: the C step is built (%.2f s after the session's start): the compiled "
+            "engine (thts) from turn %d on",
+            instance,
+            self.budgets.startup.spent(),
+            turn,
+        )
+
+    def _setup_thts(
+        self,
+        session: SessionInfo,
+        scalar: ScalarStep,
+        seed: int | None,
+        st: Settings,
+        cstep: Kernels,
+        budgets: Budgets,
+    ) -> tuple[THTS, ActionChooser]:
+        """The `thts` engine over the built C step `cstep`, its chooser and
+        settings: the candidates, and IDS's depth (fixed, or learned on
+        random-walk states with their own generator, so the search's draws
+        stay those of the seed), each within `budgets`' start-up allowance."""
+        sim = session.simulator
         # Equivalent actions are pruned in every new node, so the candidates
         # are the legal joint actions up to 8 x max_actions (TriangleTireworld
         # #5 has 813, of which a state keeps a handful) before a sample.
@@ -172,16 +253,13 @@ class MCTSPlanner(Planner):
             sim,
             dataclasses.replace(st, max_actions=8 * st.max_actions),
             self.rng,
-            inert=self._skipped(session, scalar),
+            inert=self._skipped(session, scalar, budgets),
         )
-        self._chooser = chooser
-        self.compiled = True
         search = THTS(sim, scalar, chooser, st, self.rng, self._discount(), cstep)
         # random-walk states (their own generator: the search's draws stay those of
         # the seed) to check the legal actions in C on and to learn IDS's depth on
         states: list[tuple[Any, ...]] = []
-        assert self.budgets is not None
-        if (st.heuristic == "ids" or not search._static) and self.budgets.fits(
+        if (st.heuristic == "ids" or not search._static) and budgets.fits(
             "random-walk states (to check the legal actions in C on, to learn IDS on)",
             ENUM_SECONDS + IDS_SECONDS,
             "the Python solver's candidates",
@@ -189,7 +267,7 @@ class MCTSPlanner(Planner):
             rng = np.random.default_rng(None if seed is None else [seed, 1])
             train = training_states(sim, rng)
             states = [scalar.encode_state(train, i) for i in range(min(train.batch, 16))]
-        if states and not self.budgets.fits(
+        if states and not budgets.fits(
             "checking the legal actions in C", ENUM_SECONDS, "the Python solver's candidates"
         ):
             states = []
@@ -199,7 +277,7 @@ class MCTSPlanner(Planner):
             fixed = st.ids_depth or (5 if st.iterations is not None else 0)
             if fixed:
                 search.ids_depth = fixed
-            elif self.budgets.fits("learning IDS's depth", IDS_SECONDS, "roll-outs, no IDS"):
+            elif budgets.fits("learning IDS's depth", IDS_SECONDS, "roll-outs, no IDS"):
                 walked = states
 
                 def learn() -> int:
@@ -213,23 +291,24 @@ class MCTSPlanner(Planner):
                         learning = [scalar.encode_state(train, i) for i in range(n)]
                     return search.learn_ids(learning, session.model.horizon or 40, st.ids_timeout)
 
-                depth = self.budgets.within("learning IDS's depth", learn, 0, "roll-outs, no IDS")
+                depth = budgets.within("learning IDS's depth", learn, 0, "roll-outs, no IDS")
                 search.ids_depth = depth
                 log.info("mcts: %s: IDS depth %d", session.instance, depth)
         if attach(search):
             log.info("mcts: %s: the trials in C", session.instance)
-        return search
+        return search, chooser
 
     def _skipped(
-        self, session: SessionInfo, scalar: ScalarStep
+        self, session: SessionInfo, scalar: ScalarStep, budgets: Budgets | None = None
     ) -> list[tuple[str, tuple[int, ...]]]:
         """The action groundings the thts search leaves at their default: those
         the step never reads, and with `prune_useless` those that can never pay
-        (`relevance.useless_actions`)."""
+        (`relevance.useless_actions`, within `budgets`, else the session's)."""
         skipped = removable_inert(scalar)  # (those the constraints allow at their default)
-        if self.settings.prune_useless:
-            assert self.budgets is not None
-            useless = self.budgets.within(
+        budgets = budgets or self.budgets
+        if self._asked.prune_useless:
+            assert budgets is not None
+            useless = budgets.within(
                 "the relevance analysis (prune_useless)",
                 lambda: useless_actions(scalar),
                 [],
@@ -293,21 +372,6 @@ class MCTSPlanner(Planner):
             ids = None
         return ids, locks
 
-    @staticmethod
-    def _warm_up(sim: Simulator, largest: int = 4096) -> None:
-        """Compile the simulator's functions for every batch size the search
-        uses now rather than in the first turn's search, so that the first
-        turn keeps its deadline too (a failure is left for the search)."""
-        rng = np.random.default_rng(0)  # not the search's: seeded runs stay the same
-        for batch in sorted({1, 2, min(4096, largest)}):
-            state = sim.initial_state(batch)
-            noop = sim.noop(batch)
-            try:
-                sim.check_actions(state, noop)
-                sim.step(state, noop, rng, check=False)
-            except Exception as err:  # noqa: BLE001 - the search meets and reports it
-                log.debug("mcts: warm-up step of %d states failed: %s", batch, err)
-
     def start_round(self, round_num: int) -> None:
         if self._thts is not None:
             self._thts.start_round()
@@ -326,6 +390,8 @@ class MCTSPlanner(Planner):
         )
 
     def end_session(self, total_reward: float) -> None:
+        self._ended.set()
+        self._pending = None
         if self._thts is not None:
             gc.unfreeze()
         s = self.stats
@@ -345,6 +411,8 @@ class MCTSPlanner(Planner):
     # -- a turn --------------------------------------------------------
 
     def act(self, obs: Observation) -> list[WireFluent]:
+        if self._pending is not None:
+            self._switch(obs.turn)
         # a turn in a worker thread (but the C tree's, which keeps its deadline): one
         # that runs past it (a slow root expansion) sends noop and finishes in the
         # background

@@ -6,10 +6,15 @@ on when the allowance (option `startup`) runs short:
 
 * the relevance analysis (`prune_useless`) runs in a worker thread with the
   time left as its deadline; late, every action grounding is kept;
-* the C step's translation and compile run in a worker thread too; late,
-  the session goes on as with `compiled=no` (the compiler, when it was
-  already running, finishes in the background and its library is cached for
-  the next session);
+* the C step's translation and compile start in the background as soon as
+  there is a scalar step (`start_compile`), and the session waits for them
+  `COMPILE_SHARE` of the start-up time left (`compile_wait`); late, the
+  wave engine plays while the build goes on, and the first turn after it
+  (and the compiled engine's set-up, with an allowance of its own) has
+  ended switches to the compiled engine (the planner's `_switch`). With
+  `iterations` (a run that must not depend on the machine's speed) or
+  `compiled=yes` the whole allowance is waited for, and a late build means
+  the wave engine for the session (`compiled=yes`: the session fails);
 * the legal actions in C (`setup_enum`) and IDS's learning phase run only
   when at least `ENUM_SECONDS` / `IDS_SECONDS` are left, else the Python
   solver's candidates, and roll-outs instead of IDS;
@@ -24,24 +29,26 @@ growing the tree within a turn when it holds that many nodes.
 
 from __future__ import annotations
 
-import dataclasses
-import importlib
+import copy
 import logging
 from collections.abc import Callable
-from typing import TYPE_CHECKING, Any, TypeVar
+from typing import TYPE_CHECKING, TypeVar
 
-from ...rddl.sim.cstep import CUnavailable
+import numpy as np
+
 from ...rddl.sim.scalar import ScalarStep
 from ...rddl.simulator import Simulator
-from ..base import Planner, PlannerError, SessionInfo
+from ..base import Planner, SessionInfo
 from ..budget import (
     DEFAULT_STARTUP,
+    Background,
     OneAtATime,
     Startup,
     StartupOverrun,
     memory_budget,
 )
 from . import sizing as _sizing
+from .ckernels import Kernels
 from .options import Settings
 
 if TYPE_CHECKING:
@@ -56,6 +63,11 @@ ENUM_SECONDS = 1.0
 """Start-up seconds that must be left to check the legal actions in C."""
 IDS_SECONDS = 1.0
 """Start-up seconds that must be left to learn IDS's depth."""
+COMPILE_SHARE = 0.5
+"""Share of the start-up time left that a session waits for the C step's
+build before the wave engine starts instead: the rest is the wave engine's
+own set-up (its warm-up, its IDS), so that a cold compile cache does not
+hold up the first action."""
 
 
 class Budgets:
@@ -86,28 +98,30 @@ class Budgets:
             self.startup.skip(what, f"{err}; {why_late}")
             return instead
 
-    def compile(self, scalar: ScalarStep, settings: Settings) -> Settings:
-        """Build the C step within the start-up time left, so that the
-        planner's own build finds it in the compile cache; `settings` with
-        `compiled=no` when it is late (a warning; the compiler, already
-        running, finishes in the background and fills the cache for the
-        next session). With `compiled=yes` a late build fails the session."""
-        if settings.compiled == "no":
-            return settings
+    def start_compile(self, scalar: ScalarStep) -> Background[Kernels]:
+        """The C step's translation and build (the compiler a subprocess),
+        started now in the background; its result is the thts engine's
+        `Kernels` (or `CUnavailable`)."""
         build = _c_builder()
-        try:
-            self.startup.run("compiling the C step", lambda: build(scalar))
-        except CUnavailable:
-            return settings  # the planner's own build says why
-        except StartupOverrun as err:
-            if settings.compiled == "yes":
-                raise PlannerError(
-                    f"mcts: compiled=yes, but the C step is not built within the start-up "
-                    f"allowance of {self.startup.seconds:g} s (option startup)"
-                ) from None
-            self.startup.skip("compiling the C step", f"{err}; no C step (compiled=no)")
-            return dataclasses.replace(settings, compiled="no")
-        return settings
+        return Background("mcts: compiling the C step", lambda: build(scalar))
+
+    def compile_wait(self, settings: Settings) -> float:
+        """Seconds to wait for the C step's build before starting the wave
+        engine instead: `COMPILE_SHARE` of the start-up time left, or all of
+        it where the engine must not change during the session (`iterations`,
+        `compiled=yes`)."""
+        left = max(0.0, self.startup.left())
+        if settings.iterations is not None or settings.compiled == "yes":
+            return left
+        return COMPILE_SHARE * left
+
+    def afresh(self) -> Budgets:
+        """These budgets with a start-up allowance that starts again now:
+        for the compiled engine's set-up after a late build, which runs
+        beside the wave engine's turns instead of before the first action."""
+        fresh = copy.copy(self)
+        fresh.startup = Startup(self.startup.who, self.startup.instance, self.startup.seconds)
+        return fresh
 
     def heuristic(
         self, settings: Settings, build: Callable[[], tuple[IDS | None, RewardLocks | None]]
@@ -179,15 +193,22 @@ class Budgets:
         return True
 
 
-def _c_builder() -> Callable[[ScalarStep], Any]:
-    """What builds the thts engine's C step: `ckernels.Kernels` where the
-    planner's C sources are package data, else the compiled step with the
-    tree's C text (`ctree.TREE_C`)."""
-    try:
-        module = importlib.import_module(f"{__package__}.ckernels")
-    except ImportError:
-        from ...rddl.sim.cstep import CStep
+def _c_builder() -> Callable[[ScalarStep], Kernels]:
+    """What builds the thts engine's C step (a function, so that a test can
+    make the build slow or make it fail)."""
+    return Kernels
 
-        tree_c = importlib.import_module(f"{__package__}.ctree").TREE_C
-        return lambda scalar: CStep(scalar, extra=tree_c)
-    return module.Kernels  # type: ignore[no-any-return]
+
+def warm_up(sim: Simulator, largest: int = 4096) -> None:
+    """Compile the simulator's functions for every batch size the search
+    uses now rather than in the first turn's search, so that the first
+    turn keeps its deadline too (a failure is left for the search)."""
+    rng = np.random.default_rng(0)  # not the search's: seeded runs stay the same
+    for batch in sorted({1, 2, min(4096, largest)}):
+        state = sim.initial_state(batch)
+        noop = sim.noop(batch)
+        try:
+            sim.check_actions(state, noop)
+            sim.step(state, noop, rng, check=False)
+        except Exception as err:  # noqa: BLE001 - the search meets and reports it
+            log.debug("mcts: warm-up step of %d states failed: %s", batch, err)

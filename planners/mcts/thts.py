@@ -66,10 +66,10 @@ set), IDS's depth (PROST's learning phase, in C), and the turn's calls
 (`root`, `search`, `best`). The draws come from the C generator seeded from
 the planner's: a seed gives the same search on any machine.
 
-Where there is no C step (no compiler, `compiled = no`, a start-up too short
-to build it) or `reward_locks` is asked for, the session runs the `wave`
-engine instead (`planner`). A pure-Python transcription of the same tree is
-kept as a reference for the tests only (tests/planners/thts_reference.py);
+Where there is no C step (no compiler, a failed build, `compiled = no`) or
+`reward_locks` is asked for, the session runs the `wave` engine instead
+(`planner`), and where the build is late, until it has ended (`startup`).
+A pure-Python transcription of the same tree is kept as a reference for the tests only (tests/planners/thts_reference.py);
 docs/architecture.md ("mcts: one search engine") says why.
 
 Imports the kernels (`ckernels`), the chooser (`actions`), the relevance

@@ -17,6 +17,10 @@ builds in a fresh private folder of its own instead (`tempfile.mkdtemp`,
 mode 0700, removed at exit): code that another local user placed where
 the cache would be is never loaded.
 
+One process builds one text once at a time: a second build of the same
+text (a session started while an earlier session's build, still running in
+the background, compiles it) waits for the first and loads its library.
+
 Compiler warnings are on (`-Wall -Wextra`); the C files of the package
 compile without one (tests/rddl/test_cstep.py builds them with `-Werror`),
 and any warning a build prints is logged at debug level.
@@ -104,6 +108,8 @@ def _safe_parent(path: Path) -> None:
 _TEMP: Path | None = None
 _TEMP_GUARD = threading.Lock()
 _REFUSED: set[str] = set()  # folders already warned about
+_BUILDING: dict[str, threading.Lock] = {}  # one lock per library, built or loaded under it
+_BUILDING_GUARD = threading.Lock()
 
 
 def _temporary() -> Path:
@@ -159,6 +165,14 @@ def build(source: str) -> Path:
     if cc is None:
         raise CUnavailable("no C compiler (set CC, or install cc, gcc or clang)")
     digest = hashlib.sha256((cc + "\0" + source).encode()).hexdigest()[:24]
+    with _BUILDING_GUARD:
+        lock = _BUILDING.setdefault(digest, threading.Lock())
+    with lock:
+        return _build(cc, digest, source)
+
+
+def _build(cc: str, digest: str, source: str) -> Path:
+    """`build` with this library's lock held."""
     folder = cache_dir()
     lib = folder / f"step-{digest}.so"
     if lib.exists() or lib.is_symlink():
