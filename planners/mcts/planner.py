@@ -308,7 +308,7 @@ class MCTSPlanner(Planner):
         budgets = budgets or self.budgets
         if self._asked.prune_useless:
             assert budgets is not None
-            useless = budgets.within(
+            useless: list[tuple[str, tuple[int, ...]]] = budgets.within(
                 "the relevance analysis (prune_useless)",
                 lambda: useless_actions(scalar),
                 [],
