@@ -46,16 +46,17 @@ domain probe_d {
         press-c : { action-fluent, bool, default = false };
         press-d : { action-fluent, bool, default = false };
         sure : { action-fluent, bool, default = false };
+        twin : { action-fluent, bool, default = false };
         nudge : { action-fluent, bool, default = false };
         flip : { action-fluent, bool, default = false };
     };
     cpfs {
         coin = flip ^ Bernoulli(0.5);
         // a and b: the same probability; c another one; d the same as a
-        // but with a cost; sure: the probability p (a state fluent)
+        // but with a cost; sure and twin: the probability p (a state fluent)
         lit' = if (press-a | press-b | press-d) then Bernoulli(0.7)
                else if (press-c) then Bernoulli(0.6)
-               else if (sure) then Bernoulli(p)
+               else if (sure | twin) then Bernoulli(p)
                else lit;
         // nudge: a normal of variance v (a state fluent)
         y' = if (nudge) then Normal(y + 1.0, v) else y;
@@ -73,7 +74,17 @@ instance probe_inst {
 }
 """
 
-PROBE_ACTIONS = ["noop", "press-a", "press-b", "press-c", "press-d", "sure", "nudge", "flip"]
+PROBE_ACTIONS = [
+    "noop",
+    "press-a",
+    "press-b",
+    "press-c",
+    "press-d",
+    "sure",
+    "twin",
+    "nudge",
+    "flip",
+]
 
 
 def probe_setup(tmp_path: Path) -> tuple[Simulator, ScalarStep, Kernels, list[tuple[Any, ...]]]:
@@ -92,11 +103,13 @@ def probe_setup(tmp_path: Path) -> tuple[Simulator, ScalarStep, Kernels, list[tu
 @pytest.mark.parametrize("p,v", [(1.0, 0.0), (0.5, 1.0)])
 def test_probe_deterministic_equivalent_and_same_reward(tmp_path: Path, p: float, v: float) -> None:
     """noop is deterministic (no site reached); press-a is not; press-b is
-    press-a again (the same probability, successors and rewards: dropped,
-    the first is kept); press-c (another probability) and press-d (another
-    reward) are kept; sure (Bernoulli(p)) and nudge (Normal(., v)) are
-    deterministic exactly when p is 1 and v is 0; flip's reward is drawn
-    (an interm Bernoulli): its two probes' rewards differ."""
+    press-a again (the same probability, successors and rewards) but
+    stochastic: kept, as only deterministic actions merge; press-c (another
+    probability) and press-d (another reward) are kept; sure (Bernoulli(p))
+    and nudge (Normal(., v)) are deterministic exactly when p is 1 and v is
+    0; twin is sure again, dropped when deterministic (p = 1), else kept;
+    flip's reward is drawn (an interm Bernoulli): its two probes' rewards
+    differ."""
     sim, fast, c, acts = probe_setup(tmp_path)
     state = fast.encode_state(sim.initial_state(1))
     keys = [name for name, _ in fast.state_keys]
@@ -109,15 +122,18 @@ def test_probe_deterministic_equivalent_and_same_reward(tmp_path: Path, p: float
     )
     out = c.probe(state, c.block(acts), len(acts), draws)
     kept = {PROBE_ACTIONS[row]: rest for row, *rest in out}
-    assert [PROBE_ACTIONS[row] for row, *_ in out] == [a for a in PROBE_ACTIONS if a != "press-b"]
-    det = {name: k[0] for name, k in kept.items()}
     certain = p == 1.0 and v == 0.0
+    dropped = {"twin"} if p == 1.0 else set()
+    assert [PROBE_ACTIONS[row] for row, *_ in out] == [a for a in PROBE_ACTIONS if a not in dropped]
+    det = {name: k[0] for name, k in kept.items()}
     assert det == {
         "noop": True,
         "press-a": False,
+        "press-b": False,
         "press-c": False,
         "press-d": False,
         "sure": certain,
+        **({} if p == 1.0 else {"twin": False}),
         "nudge": certain,
         "flip": False,
     }
