@@ -2,8 +2,14 @@
 
 from __future__ import annotations
 
-from collections.abc import AsyncIterator
-from contextlib import asynccontextmanager
+import re
+import select
+import signal
+import subprocess
+import sys
+from collections.abc import AsyncIterator, Iterator
+from contextlib import asynccontextmanager, contextmanager
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -88,3 +94,51 @@ async def settled(
         while (row := stored_session(store, session_id))["status"] == "open":
             await trio.sleep(0.005)
     return row
+
+
+@dataclass
+class Server:
+    """`rddl-server` running in a subprocess: its port, its result database."""
+
+    port: int
+    db: Path
+    proc: subprocess.Popen[str]
+
+
+@contextmanager
+def serve_domains(db: Path, *options: str, start_timeout: float = 30) -> Iterator[Server]:
+    """`rddl-server domains/ --port 0 --rounds 2 --db DB -q OPTIONS` in a subprocess,
+    stopped with SIGTERM (killed if it is not gone 10 s later) at the end."""
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-c",
+            "from ippc.server.cli import main; main()",
+            str(DOMAINS),
+            "--port",
+            "0",
+            "--rounds",
+            "2",
+            *options,
+            "--db",
+            str(db),
+            "-q",
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.DEVNULL,
+        text=True,
+    )
+    try:
+        assert proc.stdout is not None
+        ready, _, _ = select.select([proc.stdout], [], [], start_timeout)
+        line = proc.stdout.readline() if ready else ""
+        m = re.match(r"listening on 127\.0\.0\.1:(\d+)$", line.strip())
+        assert m, f"the server did not start: {line!r}"
+        yield Server(int(m.group(1)), db, proc)
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        try:
+            proc.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait(timeout=10)

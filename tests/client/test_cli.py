@@ -7,21 +7,17 @@ from __future__ import annotations
 import json
 import os
 import re
-import select
-import signal
 import socket
 import subprocess
 import sys
 import time
-from collections.abc import Iterator
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import pytest
 from ippc.server.store import ResultStore
 
-from .loopback import DOMAINS, REPO
+from .loopback import REPO, Server
 
 CLIENT = Path(sys.executable).parent / "rddl-client"
 FAKES = REPO / "tests" / "fakes"
@@ -32,51 +28,6 @@ HORIZON = 15
 
 REQUIRED = {"instance", "planner", "client_name", "total_reward", "mean_round_reward", "rounds"}
 ROUND_KEYS = {"round", "reward", "turns", "seconds", "training"}
-
-
-@dataclass
-class Server:
-    port: int
-    db: Path
-    proc: subprocess.Popen[str]
-
-
-@pytest.fixture(scope="module")
-def server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Server]:
-    """`rddl-server domains/ --port 0 --rounds 2 --db ...` in a subprocess."""
-    db = tmp_path_factory.mktemp("server") / "results.db"
-    proc = subprocess.Popen(
-        [
-            sys.executable,
-            "-c",
-            "from ippc.server.cli import main; main()",
-            str(DOMAINS),
-            "--port",
-            "0",
-            "--rounds",
-            "2",
-            "--db",
-            str(db),
-            "-q",
-        ],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.DEVNULL,
-        text=True,
-    )
-    try:
-        assert proc.stdout is not None
-        ready, _, _ = select.select([proc.stdout], [], [], 30)
-        line = proc.stdout.readline() if ready else ""
-        m = re.match(r"listening on 127\.0\.0\.1:(\d+)$", line.strip())
-        assert m, f"the server did not start: {line!r}"
-        yield Server(int(m.group(1)), db, proc)
-    finally:
-        proc.send_signal(signal.SIGTERM)
-        try:
-            proc.wait(timeout=10)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait(timeout=10)
 
 
 def client_env(**extra: str) -> dict[str, str]:

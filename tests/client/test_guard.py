@@ -10,7 +10,6 @@ import signal
 import subprocess
 import sys
 import time
-from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -20,7 +19,7 @@ from ippc.planners.base import find_planner
 from ippc.server.store import ResultStore
 
 from . import runaway
-from .loopback import DOMAINS
+from .loopback import Server
 
 CLIENT = Path(sys.executable).parent / "rddl-client"
 BUDGET_MB = 300.0
@@ -103,46 +102,6 @@ def test_the_plugins_are_registered(plugins: dict[str, str]) -> None:
 # ----------------------------------------------------------------- rddl-client
 
 
-@pytest.fixture
-def server(tmp_path: Path) -> Iterator[tuple[int, Path]]:
-    """`rddl-server domains/ --timeout 3 --rounds 2` in a subprocess: (port, its db)."""
-    db = tmp_path / "server.sqlite"
-    proc = subprocess.Popen(
-        [
-            sys.executable,
-            "-c",
-            "from ippc.server.cli import main; main()",
-            str(DOMAINS),
-            "--port",
-            "0",
-            "--rounds",
-            "2",
-            "--timeout",
-            "3",
-            "--db",
-            str(db),
-            "-q",
-        ],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.DEVNULL,
-        text=True,
-    )
-    try:
-        assert proc.stdout is not None
-        ready, _, _ = select.select([proc.stdout], [], [], 60)
-        line = proc.stdout.readline() if ready else ""
-        m = re.match(r"listening on 127\.0\.0\.1:(\d+)$", line.strip())
-        assert m, f"the server did not start: {line!r}"
-        yield int(m.group(1)), db
-    finally:
-        proc.send_signal(signal.SIGTERM)
-        try:
-            proc.wait(timeout=10)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait(timeout=10)
-
-
 def client(port: int, env: dict[str, str], *args: str) -> subprocess.CompletedProcess[str]:
     return subprocess.run(
         [
@@ -165,9 +124,9 @@ def client(port: int, env: dict[str, str], *args: str) -> subprocess.CompletedPr
 
 @pytest.mark.alone
 def test_rddl_client_stops_a_planner_whose_start_up_never_returns(
-    server: tuple[int, Path], plugins: dict[str, str]
+    budget_server: Server, plugins: dict[str, str]
 ) -> None:
-    port, db = server
+    port, db = budget_server.port, budget_server.db
     done = client(port, plugins, "--planner", "stuck", "--grace", "1")
     assert done.returncode == 1, done.stderr
     assert re.fullmatch(
@@ -187,9 +146,9 @@ def test_rddl_client_stops_a_planner_whose_start_up_never_returns(
 
 @pytest.mark.alone
 def test_rddl_client_kills_a_planner_over_its_memory_budget(
-    server: tuple[int, Path], plugins: dict[str, str]
+    budget_server: Server, plugins: dict[str, str]
 ) -> None:
-    port, _ = server
+    port = budget_server.port
     done = client(port, plugins, "--planner", "hog", "--memory-budget", "300")
     assert done.returncode == 1, done.stderr
     assert re.fullmatch(
@@ -201,9 +160,9 @@ def test_rddl_client_kills_a_planner_over_its_memory_budget(
 
 @pytest.mark.alone
 def test_rddl_client_gives_a_planner_that_sizes_its_memory_its_share(
-    server: tuple[int, Path], plugins: dict[str, str]
+    budget_server: Server, plugins: dict[str, str]
 ) -> None:
-    port, _ = server
+    port = budget_server.port
     done = subprocess.run(
         [
             str(CLIENT),
