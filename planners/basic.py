@@ -119,7 +119,7 @@ class RandomPlanner(Planner):
             log.warning(
                 "random: turn %d: %s; sending a uniformly drawn legal action", obs.turn, err
             )
-        assert self._codec is not None
+        assert self._codec is not None and self._rng is not None
         return _uniform_action(self.session.simulator, self._codec, state, self._rng, "random")
 
 
