@@ -14,6 +14,7 @@ import click
 import trio
 
 from ..client.cli import parse_planner_options
+from ..client.options import budget_options
 from ..kb import KBError, KnowledgeBase
 from ..planners.base import PlannerError, make_planner
 from ..rddl import RDDLError
@@ -119,6 +120,13 @@ def print_report(report: RunReport) -> None:
 @click.option(
     "--no-header", is_flag=True, help="The built-in planner asks for no-header framing (as PROST)."
 )
+@budget_options(
+    memory_help="Resident memory the --planner's process may hold before it is killed "
+    "(default: 80% of the memory available at start; not with --simulate).",
+    grace_default=30.0,
+    grace_help="How long the --planner may play past the session's budget before its process "
+    "is stopped (not with --simulate).",
+)
 @click.option(
     "--rounds",
     default=DEFAULT_ROUNDS,
@@ -216,6 +224,8 @@ def main(
     planner_options: tuple[str, ...],
     prost_bin: Path | None,
     no_header: bool,
+    memory_mb: float | None,
+    grace: float,
     rounds: int,
     timeout: float,
     action_timeout: float,
@@ -283,6 +293,13 @@ def main(
             raise click.BadParameter(
                 "the simulated world senses and executes itself", param_hint="--simulate"
             )
+        ctx = click.get_current_context()
+        for name, hint in (("memory_mb", "--memory-budget"), ("grace", "--grace")):
+            if ctx.get_parameter_source(name) is not click.core.ParameterSource.DEFAULT:
+                raise click.BadParameter(
+                    "the simulated world plays its planner in its own loop, where no budget holds",
+                    param_hint=hint,
+                )
         try:
             report = simulate_run(
                 domain,
@@ -332,6 +349,8 @@ def main(
             serve_goals=serve_goals,
             goal_sessions=goal_sessions,
             web=page,
+            memory_mb=memory_mb,
+            grace=grace,
         )
     print_report(report)
     if json_out is not None:
@@ -429,6 +448,8 @@ def _robot(
                 serve_goals=opts["serve_goals"],
                 goal_sessions=opts["goal_sessions"] or None,
                 web=opts["web"],
+                planner_memory_mb=opts["memory_mb"],
+                planner_grace=opts["grace"],
             )
         )
     except BaseException as exc:  # trio hands some errors over in exception groups

@@ -4,9 +4,10 @@
 session code (one session at a time; the result store, transcripts and the
 session budget as rddl-server's options have them). `run_planner` plays a
 planner against it once it listens: a built-in planner through
-rddl-client's code (`ippc.client.run_session`, in a thread of its own so
-that planning never stalls the dispatcher, its handlers or its sensors) or
-PROST through its launcher (`ippc.planners.prost`). `dispatch_session`
+rddl-client's guarded session, in a child process with a time and a memory
+budget (`ippc.dispatch.attempt`), so that planning never stalls the
+dispatcher, its handlers or its sensors, or PROST through its launcher
+(`ippc.planners.prost`). `dispatch_session`
 does both and returns a `RunReport`; `simulate` does it all in the
 simulated world (`ippc.dispatch.world`), callable from Python as from
 `rddl-dispatch --simulate`.
@@ -30,7 +31,7 @@ import trio
 from ..kb import KnowledgeBase
 from ..kb.jsonl import JsonlServer
 from ..kb.service import GOAL_OUTCOME_EVENT, notify_subscribers, register_kb
-from ..planners.base import ExternalPlanner, Planner, PlannerError, make_planner
+from ..planners.base import ExternalPlanner, Planner, PlannerError, find_planner, make_planner
 from ..server.app import (
     accept_connections,
     close_services,
@@ -42,6 +43,7 @@ from ..server.app import (
 from ..server.config import ServerConfig
 from ..server.limits import LISTEN_BACKLOG, AcceptPacer
 from ..server.session import Services, Session
+from .attempt import DEFAULT_PLANNER_GRACE, play_external, play_guarded
 from .dispatcher import Dispatcher
 from .goals import GoalLedger
 from .journal import KBJournal
@@ -102,40 +104,25 @@ async def run_planner(
     timeout: float | None = None,
     *,
     in_loop: bool = False,
+    memory_mb: float | None = None,
+    grace: float = DEFAULT_PLANNER_GRACE,
 ) -> str | None:
     """Play one session of `spec`'s planner against host:port; the error it
-    ended with, or None. A built-in planner plays in a thread of its own
-    (its planning never stalls the dispatcher's handlers and sensors), or,
-    `in_loop`, as a task of the caller's trio loop: nothing else then runs
-    while it plans, but a turn costs no handover between threads (about
-    3 ms each way under the GIL's switch interval), which is what the
-    simulated world wants."""
+    ended with (why it was ended), or None. A built-in or plug-in planner
+    plays in a child process (`attempt.play_guarded`: stopped `grace` s past
+    its session's budget, killed over `memory_mb` MB, None: 80% of the
+    memory available now), watched from a thread, so that nothing it does
+    stalls the dispatcher's handlers, sensors or sockets; `in_loop`, it plays
+    in the caller's trio loop instead (no budget holds: nothing else runs
+    while it plans; no handover per turn, which the simulated world wants).
+    PROST (`spec.prost`) runs as its own program."""
+    made: Planner | ExternalPlanner | None = None  # None: made in the child
     if spec.prost is not None:
-        options = dict(spec.options)
-        options["binary"] = spec.prost
-        planner: Planner | ExternalPlanner = make_planner("prost", options)
-    else:
-        planner = make_planner(spec.name, dict(spec.options))
-    if isinstance(planner, ExternalPlanner):
-        external = planner
-
-        def play_external() -> str | None:
-            result = external.run_session(
-                host=host,
-                port=port,
-                instance=instance,
-                client_name=None,
-                timeout=timeout,
-                log_path=None,
-            )
-            return result.error
-
-        try:
-            # cancelled (its session dropped, the run ends): the program is
-            # stopped at once (below), and its thread ends with it
-            return await trio.to_thread.run_sync(play_external, abandon_on_cancel=True)
-        finally:
-            external.cancel()
+        made = make_planner("prost", {**spec.options, "binary": spec.prost})
+    elif in_loop or issubclass(find_planner(spec.name), ExternalPlanner):
+        made = make_planner(spec.name, dict(spec.options))
+    if isinstance(made, ExternalPlanner):
+        return await play_external(made, host, port, instance, timeout)
     from ..client.session import ClientConfig, ClientError, run_session
 
     config = ClientConfig(
@@ -147,24 +134,13 @@ async def run_planner(
         seed=spec.seed,
         timeout=timeout if timeout is not None else 600.0,
     )
-
-    if in_loop:
+    if made is not None:
         try:
-            await run_session(config, planner, spec.name)
+            await run_session(config, made, spec.name)
         except ClientError as err:
             return str(err)
         return None
-
-    def play_builtin() -> str | None:
-        try:
-            trio.run(run_session, config, planner, spec.name)
-        except ClientError as err:
-            return str(err)
-        return None
-
-    # cancelled: the thread is left to end by itself (its connection is
-    # closed by then, so its client stops at its next receive)
-    return await trio.to_thread.run_sync(play_builtin, abandon_on_cancel=True)
+    return await play_guarded(config, spec, memory_mb, grace)
 
 
 class _Run:
@@ -206,6 +182,8 @@ async def dispatch_session(
     sensing_task: bool = False,
     planner_timeout: float | None = None,
     planner_in_loop: bool = False,
+    planner_memory_mb: float | None = None,
+    planner_grace: float = DEFAULT_PLANNER_GRACE,
     on_listening: Callable[[int], None] | None = None,
     robot: Robot | None = None,
     kb_port: int | None = None,
@@ -249,13 +227,24 @@ async def dispatch_session(
     a `kb.goal_outcome` event. Setting `stop`
     ends the run as a signal does (`interrupted` is then "stop"). `web`
     (`ippc.dispatch.web.web_task`) is started in the run's nursery with the
-    dispatcher before the planner's socket listens: the web page."""
+    dispatcher before the planner's socket listens: the web page.
+    A built-in planner that `spec` names plays in a child process
+    (`run_planner`): stopped `planner_grace` seconds past its session's
+    budget, killed over `planner_memory_mb` MB (None: 80% of the memory
+    available when the run starts); its error (why it was ended) is the
+    attempt's, and the restart policy goes on as after any planner error.
+    `planner_in_loop`: it plays in this trio loop instead (no budget holds)."""
     started = time.perf_counter()
     link = link or LinkPolicy()
     config = dataclasses.replace(
         config, individual_session=True, idle_timeout=link.idle_timeout(config)
     )
     run = _Run()
+    if spec is not None and spec.prost is None and not planner_in_loop:
+        from ..client.guard import default_memory_budget
+
+        if planner_memory_mb is None:
+            planner_memory_mb = default_memory_budget()  # of the memory available at start
     if serve_goals:
         run.serving = True
         link = dataclasses.replace(link, reconnect=True)
@@ -350,8 +339,7 @@ async def dispatch_session(
                     config.host,
                     port,
                     dispatcher,
-                    planner_timeout,
-                    planner_in_loop,
+                    (planner_timeout, planner_in_loop, planner_memory_mb, planner_grace),
                     link,
                     run,
                 )
@@ -551,20 +539,23 @@ def _served(run: _Run, status: str, served: dict[str, Any] | None) -> None:
         run.ledger.session_ended(status, served)
 
 
+#: How `_play_planner` plays: the client's timeout, in the loop, memory budget, grace.
+_HowToPlay = tuple[float | None, bool, float | None, float]
+
+
 async def _planner_loop(
     spec: PlannerSpec,
     host: str,
     port: int,
     dispatcher: Dispatcher,
-    timeout: float | None,
-    in_loop: bool,
+    how: _HowToPlay,
     link: LinkPolicy,
     run: _Run,
 ) -> None:
     """Run the planner; while the run goes on (its session dropped), start
     it again after a delay."""
     try:
-        await _play_planner(spec, host, port, dispatcher, timeout, in_loop, link, run)
+        await _play_planner(spec, host, port, dispatcher, how, link, run)
     finally:
         run.planner_done.set()
 
@@ -574,11 +565,11 @@ async def _play_planner(
     host: str,
     port: int,
     dispatcher: Dispatcher,
-    timeout: float | None,
-    in_loop: bool,
+    how: _HowToPlay,
     link: LinkPolicy,
     run: _Run,
 ) -> None:
+    timeout, in_loop, memory_mb, grace = how
     delay = link.restart_delay
     while not run.over:
         ended = run.ended
@@ -588,7 +579,14 @@ async def _play_planner(
             run.attempt = attempt
             try:
                 error = await run_planner(
-                    spec, host, port, dispatcher.name, timeout, in_loop=in_loop
+                    spec,
+                    host,
+                    port,
+                    dispatcher.name,
+                    timeout,
+                    in_loop=in_loop,
+                    memory_mb=memory_mb,
+                    grace=grace,
                 )
             except PlannerError as err:
                 error = str(err)
