@@ -16,6 +16,16 @@ from the instance; then, for about `--seconds` each, in the same run:
 
 The ratio batched / single is the printed figure (machine-independent as far
 as a ratio is); absolute rates depend on the machine and its load.
+
+With `--play`, it plays whole rounds in-process instead (no server, no
+clock): the planners named (noop, random, mpc with `--option`s, by default
+at fixed `iterations`, so that the figures depend on the seed alone and not
+on the machine's speed or load) against the simulator, every action checked
+as the server checks it, the same sampled futures for every planner
+(common random numbers), and prints each one's mean round reward:
+
+    python bench/mpc.py --play --domains HVAC --instance 3 --rounds 2 \
+        --option iterations=3 --option samples=64 --planners noop random mpc
 """
 
 from __future__ import annotations
@@ -79,12 +89,74 @@ def measure(domain: str, instance: int, seconds: float) -> dict[str, float]:
     return {"samples": n, "horizon": h, "single": single, "batched": batched}
 
 
+def play(
+    domain: str, instance: int, planner_name: str, options: dict[str, str], rounds: int, seed: int
+) -> tuple[list[float], float]:
+    """Rounds of one planner in-process against the simulator: the round
+    totals and the seconds taken."""
+    import rddlrepository
+    from ippc.planners import Observation, SessionInfo, make_planner
+    from ippc.rddl import load_pair
+    from ippc.rddl.simulator import Simulator
+    from ippc.rddl.wire import WireCodec
+
+    folder = Path(rddlrepository.__file__).parent / "archive/competitions/IPPC2023" / domain
+    model = load_pair(folder / "domain.rddl", folder / f"instance{instance}.rddl")
+    sim = Simulator(model)
+    opts = {"seed": str(seed)} if planner_name == "random" else {}
+    if planner_name == "mpc":
+        opts = {"seed": str(seed), **options}
+    planner = make_planner(planner_name, opts)
+    started = time.perf_counter()
+    planner.start_session(SessionInfo(model.name, model, sim, rounds, 1e9, seed))
+    codec = WireCodec(sim)
+    horizon = model.horizon or 100
+    totals = []
+    for r in range(rounds):
+        rng = np.random.default_rng([seed, r])  # the same futures for every planner
+        planner.start_round(r + 1)
+        state, total = sim.initial_state(1), 0.0
+        for t in range(horizon):
+            obs = Observation(None, state, t + 1, horizon - t, 1e9, 0.0, math.inf)
+            decoded = codec.actions_from(planner.act(obs))
+            if decoded.illegal or not bool(sim.check_actions(state, decoded.arrays)[0]):
+                raise AssertionError(f"{planner_name} sent an illegal action at turn {t + 1}")
+            step = sim.step(state, decoded.arrays, rng, check=True)
+            total += float(step.reward[0]) * (model.discount**t)
+            state = step.next_state
+            if bool(step.done[0]):
+                break
+        totals.append(total)
+    return totals, time.perf_counter() - started
+
+
+def main_play(args: argparse.Namespace) -> None:
+    options = dict(o.split("=", 1) for o in args.option)
+    if "time_per_step" not in options:
+        options.setdefault("iterations", "3")
+    print(f"IPPC 2023 instance {args.instance}, {args.rounds} rounds, seed {args.seed}, {options}")
+    for domain in args.domains:
+        cells = []
+        for name in args.planners:
+            totals, secs = play(domain, args.instance, name, options, args.rounds, args.seed)
+            cells.append(f"{name} {np.mean(totals):,.4g} ({secs:.0f} s)")
+        print(f"{domain} #{args.instance}: " + "; ".join(cells), flush=True)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--domains", nargs="+", default=DOMAINS)
     parser.add_argument("--instance", type=int, default=1)
     parser.add_argument("--seconds", type=float, default=1.0, help="per measurement")
+    parser.add_argument("--play", action="store_true", help="play rounds in-process")
+    parser.add_argument("--planners", nargs="+", default=["noop", "random", "mpc"])
+    parser.add_argument("--option", action="append", default=[], help="mpc's KEY=VALUE")
+    parser.add_argument("--rounds", type=int, default=1)
+    parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args()
+    if args.play:
+        main_play(args)
+        return
     print(f"IPPC 2023 instance {args.instance}; states stepped per second")
     print(
         f"{'domain':<12} {'samples':>7} {'horizon':>7} {'single':>10} {'batched':>11} {'ratio':>7}"

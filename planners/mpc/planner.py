@@ -54,8 +54,9 @@ class MPCPlanner(Planner):
         "time_per_step": "seconds a turn may take (default: the client's share of the session)",
         "memory_mb": "megabytes the sampled sequences and their states may take (default 256)",
         "seed": "integer seed (default: the client's --seed, else unseeded)",
-        "iterations": "rounds of refitting a turn, whatever the clock says (default: as many "
-        "as time allows; for tests and reproducible runs)",
+        "iterations": "rounds of refitting a turn, whatever the clock says, each of `samples` "
+        "sequences over `horizon` steps (default: as many as time allows); the actions then "
+        "depend on the seed alone, not on the machine's speed (tests, comparing variants)",
     }
 
     def __init__(self, **options: str) -> None:
@@ -112,7 +113,28 @@ class MPCPlanner(Planner):
         self.stats = dict.fromkeys(
             ("turns", "late", "refits", "repaired", "illegal", "fallbacks"), 0
         )
-        self._measure()
+        if self.iterations is None:
+            self._measure()
+        else:
+            # fixed rounds: the batch and the horizon are the options', whatever
+            # the machine's speed; nothing here reads a clock or draws from
+            # the planner's generator, so a seed fixes every action sent
+            self.fixed, self.each = 1e-4, 1e-6
+            self.n, self.h_limit = self.cap, self.horizon
+            self._compile()
+
+    def _compile(self) -> None:
+        """Compile the step and the legality check for a batch (on a generator
+        of their own: the planner's draws do not depend on whether this ran)."""
+        sim = self.session.simulator if self.session else None
+        assert sim is not None
+        try:
+            states = self.initial[np.zeros(2, dtype=np.int64)]
+            sim.step(states, sim.noop(2), np.random.default_rng(0), check=False)
+            sim.check_actions(states, sim.noop(2))
+            sim.check_actions(self.initial, sim.noop(1))
+        except SimulationError as err:
+            log.info("mpc: noop cannot be simulated from the initial state (%s)", err)
 
     def _measure(self) -> None:
         """The first batch size: what `ITERATIONS` rounds of a full horizon in
@@ -125,15 +147,16 @@ class MPCPlanner(Planner):
         self.fixed, self.each = 1e-4, 1e-6
         sizes = (2, min(self.cap, 32)) if self.cap > 2 else (2,)
         cost = {}
+        timing = np.random.default_rng(0)  # not the planner's: its draws stay the seed's
         try:
             for n in sizes:
                 states = self.initial[np.zeros(n, dtype=np.int64)]
                 noop = sim.noop(n)
-                sim.step(states, noop, self.rng, check=False)  # compiles
+                sim.step(states, noop, timing, check=False)  # compiles
                 times = []
                 for _ in range(3):
                     t0 = time.perf_counter()
-                    sim.step(states, noop, self.rng, check=False)
+                    sim.step(states, noop, timing, check=False)
                     times.append(time.perf_counter() - t0)
                 cost[n] = min(times)
                 sim.check_actions(states, noop)  # compiles the legality check too
@@ -247,7 +270,8 @@ class MPCPlanner(Planner):
                 break
             if got is None:
                 break
-            self._learn_cost(n, (time.monotonic() - t0) / max(1, got.calls))
+            if self.iterations is None:
+                self._learn_cost(n, (time.monotonic() - t0) / max(1, got.calls))
             self.stats["illegal"] += got.illegal
             self.stats["repaired"] += got.repaired
             returns = got.returns

@@ -311,3 +311,46 @@ def test_out_of_time_it_draws_choices_instead_of_sending_noop(tmp_path: Path) ->
         shown += int(decoded.arrays.get("show", np.zeros(1))[0].sum())
     assert planner.stats["refits"] == 0
     assert shown > 0
+
+
+class _SlowClock:
+    """A clock on which every reading is `step` seconds after the last (a
+    machine starved of CPU)."""
+
+    def __init__(self, step: float) -> None:
+        self.now, self.step = 1000.0, step
+
+    def monotonic(self) -> float:
+        self.now += self.step
+        return self.now
+
+    perf_counter = monotonic
+
+
+def test_iterations_mode_depends_on_the_seed_alone(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # a fixed number of rounds: the same seed sends the same actions whether
+    # the machine is fast or starved (every clock reading 5 s after the last),
+    # and the batch and horizon are the options', not sized by timing
+    import ippc.planners.mpc.planner as planner_module
+    import ippc.planners.mpc.search as search_module
+
+    model = model_of(tmp_path, RESERVOIR, "tank_inst")
+    options = {"iterations": "2", "samples": "40", "horizon": "4"}
+    _, fast, sent_fast = play(model, options, rounds=2, seed=9)
+    slow_clock = _SlowClock(5.0)
+    monkeypatch.setattr(planner_module, "time", slow_clock)
+    monkeypatch.setattr(search_module, "time", slow_clock)
+    _, slow, sent_slow = play(model, options, rounds=2, seed=9)
+    assert (fast.n, fast.h_limit) == (slow.n, slow.h_limit) == (40, 4)
+    assert len(sent_fast) == len(sent_slow) == 12
+    for a, b in zip(sent_fast, sent_slow, strict=True):
+        assert a.keys() == b.keys()
+        for name in a:
+            assert np.array_equal(a[name], b[name])
+    assert fast.stats["refits"] == slow.stats["refits"] == 2 * 12
+    # another seed plays otherwise (the seed is what decides)
+    _, _, sent_other = play(model, options, rounds=2, seed=10)
+    pairs = zip(sent_fast, sent_other, strict=True)
+    assert any(not np.array_equal(a["release"], b["release"]) for a, b in pairs)
